@@ -1,0 +1,32 @@
+# One-command dev loop. `make run` installs and runs the simulated mission; `make test`
+# installs the dev tools (and the Debian packages some tests use, when run as root) and runs
+# lint and the whole suite. Both use a virtual environment in .venv.
+PYTHON ?= python3
+VENV ?= .venv
+BIN = $(VENV)/bin
+
+$(BIN)/shepherd: pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[dev]'
+	touch $@
+
+.PHONY: install run test lint bench clean
+install: $(BIN)/shepherd
+
+run: install
+	$(BIN)/shepherd run
+
+lint: install
+	$(BIN)/ruff check schemas services tests
+
+test: install
+	bash scripts/install-test-deps
+	$(BIN)/ruff check schemas services tests
+	$(BIN)/pytest -q
+
+bench: install
+	$(BIN)/shepherd bench
+
+clean:
+	rm -rf $(VENV) build *.egg-info runs

@@ -1,0 +1,251 @@
+"""Every message on the Shepherd bus, as frozen pydantic v2 models.
+
+SI units on the wire: metres, radians, Unix nanoseconds. Frames follow DESIGN.md: world ``W``
+(z up), camera optical ``C`` (OpenCV: x right, y down, z forward), marker ``M`` (origin at the
+rhombus centre, z out of the humanoid's back).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from enum import StrEnum
+from typing import Annotated, Any, ClassVar, Literal
+
+from pydantic import BaseModel, ConfigDict, Field, field_validator
+
+FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+Vec2 = tuple[FiniteFloat, FiniteFloat]
+Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
+Row3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
+
+
+def now_ns() -> int:
+    """Current Unix time in nanoseconds."""
+    return time.time_ns()
+
+
+class Message(BaseModel):
+    """Base of every bus message: frozen, finite floats, unknown fields ignored."""
+
+    model_config = ConfigDict(frozen=True, extra="ignore", allow_inf_nan=False)
+    VERSION: ClassVar[int] = 1
+
+    @classmethod
+    def zenoh_encoding(cls) -> str:
+        """Zenoh encoding string, e.g. ``application/json;shepherd.HumanoidPose/1``."""
+        return f"application/json;shepherd.{cls.__name__}/{cls.VERSION}"
+
+
+class Command(StrEnum):
+    """Robosapien motion commands the system uses."""
+
+    WALK_FORWARD = "walk_forward"
+    WALK_BACKWARD = "walk_backward"
+    TURN_LEFT = "turn_left"
+    TURN_RIGHT = "turn_right"
+    STOP = "stop"
+
+
+# Robosapien V1 IR codes (implementation notes, section 1).
+ROBOSAPIEN_CODES: dict[Command, int] = {
+    Command.WALK_FORWARD: 0x86,
+    Command.WALK_BACKWARD: 0x87,
+    Command.TURN_LEFT: 0x88,
+    Command.TURN_RIGHT: 0x80,
+    Command.STOP: 0x8E,
+}
+
+
+class FrameEncoding(StrEnum):
+    BGR8 = "bgr8"
+    MONO8 = "mono8"
+    JPEG = "jpeg"
+
+
+class FrameHeader(Message):
+    """JSON header of a ``camera/frame`` sample, carried in the Zenoh attachment."""
+
+    seq: int = Field(ge=0)
+    stamp_ns: int = Field(ge=0, description="capture time, Unix ns")
+    width: int = Field(gt=0, le=16384)
+    height: int = Field(gt=0, le=16384)
+    encoding: FrameEncoding
+
+    def expected_size(self) -> int | None:
+        """Payload size in bytes for raw encodings, None for JPEG."""
+        channels = {FrameEncoding.BGR8: 3, FrameEncoding.MONO8: 1}.get(self.encoding)
+        return None if channels is None else self.width * self.height * channels
+
+
+class CameraIntrinsics(Message):
+    """Pinhole intrinsics with OpenCV's distortion model; K and dist in pixels / unitless."""
+
+    stamp_ns: int = Field(default_factory=now_ns, ge=0)
+    width: int = Field(gt=0)
+    height: int = Field(gt=0)
+    K: tuple[Row3, Row3, Row3] = Field(description="3x3 camera matrix, rows")
+    dist: tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat] = (
+        0.0, 0.0, 0.0, 0.0, 0.0,
+    )
+    rms_px: FiniteFloat = Field(default=0.0, ge=0.0)
+
+    @field_validator("K")
+    @classmethod
+    def _k_is_camera_matrix(cls, K: tuple[Row3, Row3, Row3]) -> tuple[Row3, Row3, Row3]:
+        if K[0][0] <= 0 or K[1][1] <= 0:
+            raise ValueError("K[0][0] and K[1][1] (focal lengths in px) must be positive")
+        if K[1][0] != 0 or K[2][0] != 0 or K[2][1] != 0 or K[2][2] != 1:
+            raise ValueError("K must be upper triangular with K[2] = [0, 0, 1]")
+        return K
+
+
+class CameraPose(Message):
+    """Camera robot base ``B`` in the world: position in m, yaw in rad about world z."""
+
+    stamp_ns: int = Field(default_factory=now_ns, ge=0)
+    x: FiniteFloat
+    y: FiniteFloat
+    yaw: FiniteFloat
+
+
+class CameraGoal(Message):
+    """Where the camera robot base should stand (world, m / rad) and why."""
+
+    stamp_ns: int = Field(default_factory=now_ns, ge=0)
+    x: FiniteFloat
+    y: FiniteFloat
+    yaw: FiniteFloat
+    reason: str = ""
+
+
+class MarkerVertices(Message):
+    """Rhombus vertices in pixels, ordered left, top, right, bottom (empty when not found)."""
+
+    seq: int = Field(ge=0)
+    stamp_ns: int = Field(ge=0)
+    found: bool
+    vertices_px: tuple[Vec2, Vec2, Vec2, Vec2] | None = None
+    area_ratio: FiniteFloat = Field(default=0.0, ge=0.0, le=1.0)
+    residual_px: FiniteFloat = Field(default=0.0, ge=0.0)
+    reason: str = ""
+    width: int = Field(default=0, ge=0, description="image width the vertices refer to")
+    height: int = Field(default=0, ge=0)
+
+
+
+class MarkerInCamera(Message):
+    """Pose of the marker frame ``M`` in the camera optical frame ``C`` (T_camera_marker)."""
+
+    position: Vec3 = Field(description="m, camera optical frame")
+    quaternion: tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat] = Field(
+        description="x, y, z, w"
+    )
+
+    @field_validator("quaternion")
+    @classmethod
+    def _unit(cls, q: tuple[float, float, float, float]) -> tuple[float, float, float, float]:
+        n = math.sqrt(sum(c * c for c in q))
+        if not 0.99 < n < 1.01:
+            raise ValueError(f"quaternion must have unit norm, got {n:.4f}")
+        return q
+
+
+class HumanoidPose(Message):
+    """The humanoid's floor pose in the world (m, rad) and the marker pose in the camera."""
+
+    seq: int = Field(ge=0)
+    stamp_ns: int = Field(ge=0)
+    x: FiniteFloat | None = None
+    y: FiniteFloat | None = None
+    yaw: FiniteFloat | None = None
+    marker_in_camera: MarkerInCamera
+    reprojection_px: FiniteFloat = Field(ge=0.0)
+    covariance: tuple[Row3, Row3, Row3] | None = Field(
+        default=None, description="3x3 over (x m, y m, yaw rad), world frame"
+    )
+    reason: str = Field(default="", description="why x, y, yaw are null, if they are")
+    area_ratio: FiniteFloat = Field(default=0.0, ge=0.0, le=1.0)
+
+
+class MissionGoal(Message):
+    """Waypoints for the humanoid on the floor (world, m)."""
+
+    stamp_ns: int = Field(default_factory=now_ns, ge=0)
+    waypoints: list[Vec2] = Field(max_length=1000)
+    tolerance_m: FiniteFloat = Field(default=0.03, gt=0.0)
+
+
+class Phase(StrEnum):
+    IDLE = "idle"
+    TURNING = "turning"
+    WALKING = "walking"
+    HOLD = "hold"
+    WAITING_POSE = "waiting_pose"
+    DONE = "done"
+
+
+class MissionState(Message):
+    stamp_ns: int = Field(default_factory=now_ns, ge=0)
+    phase: Phase
+    waypoint_index: int = Field(ge=0)
+    distance_m: FiniteFloat | None = None
+    heading_error_rad: FiniteFloat | None = None
+    last_command: Command
+
+
+class Hold(Message):
+    """The camera planner asks the mission controller to hold the humanoid still."""
+
+    stamp_ns: int = Field(default_factory=now_ns, ge=0)
+    hold: bool
+    reason: str = ""
+
+
+class IrCommand(Message):
+    """An infra-red command for the humanoid; ``code`` is the Robosapien byte."""
+
+    stamp_ns: int = Field(default_factory=now_ns, ge=0)
+    command: Command
+    code: int = Field(default=-1, ge=-1, le=0xFF)
+
+    def model_post_init(self, __context: Any) -> None:
+        if self.code == -1:
+            object.__setattr__(self, "code", ROBOSAPIEN_CODES[self.command])
+
+
+class IrBackendRequest(Message):
+    """A put on ``ir/backend``: switch the IR transmitter to this backend."""
+
+    stamp_ns: int = Field(default_factory=now_ns, ge=0)
+    backend: Literal["serial", "lirc", "sim", "log"]
+    options: dict[str, Any] = Field(default_factory=dict)
+
+
+class IrBackendStatus(Message):
+    """Reply to a query on ``ir/backend``."""
+
+    stamp_ns: int = Field(default_factory=now_ns, ge=0)
+    backend: str
+    options: dict[str, Any] = Field(default_factory=dict)
+    sent: int = 0
+    failed: int = 0
+    coalesced: int = 0
+    connected: bool = True
+    last_error: str = ""
+
+
+class Pose2D(Message):
+    x: FiniteFloat
+    y: FiniteFloat
+    yaw: FiniteFloat
+
+
+class SimTruth(Message):
+    """Ground truth from the simulator (world, m / rad)."""
+
+    stamp_ns: int = Field(ge=0)
+    seq: int = Field(default=0, ge=0)
+    humanoid: Pose2D
+    camera: Pose2D
+    marker_in_camera: MarkerInCamera | None = None

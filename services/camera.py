@@ -1,0 +1,86 @@
+"""Camera intrinsics: the pinhole + OpenCV distortion model, projection, and TOML files.
+
+Intrinsics files are TOML with ``width``, ``height``, ``K`` (3 rows of 3, px), ``dist``
+([k1, k2, p1, p2, k3]) and ``rms_px`` (DESIGN.md).
+"""
+
+from __future__ import annotations
+
+import tomllib
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+from pydantic import ValidationError
+
+from schemas import CameraIntrinsics
+
+#: The paper's web camera (eq. 3), 640 x 480.
+PAPER_K = ((757.25, 2.06, 389.67), (0.0, 754.24, 260.5), (0.0, 0.0, 1.0))
+
+
+@dataclass(frozen=True)
+class CameraModel:
+    """Intrinsics K (3x3, px), distortion (k1, k2, p1, p2, k3) and image size (px)."""
+
+    K: np.ndarray
+    dist: np.ndarray = field(default_factory=lambda: np.zeros(5))
+    width: int = 640
+    height: int = 480
+    rms_px: float = 0.0
+
+    @classmethod
+    def paper(cls) -> CameraModel:
+        return cls(np.array(PAPER_K, dtype=np.float64), np.zeros(5), 640, 480)
+
+    @classmethod
+    def from_message(cls, msg: CameraIntrinsics) -> CameraModel:
+        return cls(np.array(msg.K, dtype=np.float64), np.array(msg.dist, dtype=np.float64),
+                   msg.width, msg.height, msg.rms_px)
+
+    def to_message(self) -> CameraIntrinsics:
+        K = tuple(tuple(float(v) for v in row) for row in self.K)
+        return CameraIntrinsics(width=self.width, height=self.height, K=K,  # type: ignore[arg-type]
+                                dist=tuple(float(v) for v in self.dist),  # type: ignore[arg-type]
+                                rms_px=self.rms_px)
+
+    @classmethod
+    def load(cls, path: str | Path) -> CameraModel:
+        """Read an intrinsics TOML file; raises ValueError naming the file and the problem."""
+        path = Path(path)
+        try:
+            data = tomllib.loads(path.read_text(encoding="utf-8"))
+        except OSError as err:
+            raise ValueError(f"{path}: cannot read intrinsics: {err.strerror}") from None
+        except tomllib.TOMLDecodeError as err:
+            raise ValueError(f"{path}: not valid TOML: {err}") from None
+        fields = {k: data[k] for k in ("width", "height", "K", "dist", "rms_px") if k in data}
+        try:
+            return cls.from_message(CameraIntrinsics.model_validate(fields))
+        except ValidationError as err:
+            first = err.errors()[0]
+            raise ValueError(f"{path}: {'.'.join(map(str, first['loc']))}: {first['msg']}"
+                             ) from None
+
+    def to_toml(self, extra: str = "") -> str:
+        rows = ",\n  ".join("[" + ", ".join(f"{v:.10g}" for v in row) + "]" for row in self.K)
+        dist = ", ".join(f"{v:.10g}" for v in self.dist)
+        return (f"width = {self.width}\nheight = {self.height}\nK = [\n  {rows},\n]\n"
+                f"dist = [{dist}]  # k1, k2, p1, p2, k3 (OpenCV model)\n"
+                f"rms_px = {self.rms_px:.6g}\n{extra}")
+
+    def project(self, points_cam: np.ndarray) -> np.ndarray:
+        """Project points in the camera optical frame (N, 3) m to pixels (N, 2).
+
+        Written out (pinhole, radial k1 k2 k3, tangential p1 p2) so that tests can check it
+        against ``cv2.projectPoints``.
+        """
+        p = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
+        x, y = p[:, 0] / p[:, 2], p[:, 1] / p[:, 2]
+        k1, k2, p1, p2, k3 = self.dist
+        r2 = x * x + y * y
+        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
+        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
+        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
+        K = self.K
+        return np.column_stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]])

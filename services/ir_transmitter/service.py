@@ -1,0 +1,133 @@
+"""The ``ir_transmitter`` service: ``ir/command`` -> the humanoid, through a swappable backend.
+
+Commands are sent in order, at least ``min_gap_s`` apart; a repeat of the command last sent
+within ``repeat_window_s`` is coalesced (counted, not sent). A put on ``ir/backend`` swaps the
+backend after the command in flight; a bad request is rejected with its reason and the old
+backend stays. A query on ``ir/backend`` returns the backend and its counters. While a serial
+device is unplugged, commands are reported as failed; after it comes back the latest command
+is sent only if it is younger than ``fresh_s``. ``stop`` is sent at shutdown.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from typing import Any, Literal
+
+from pydantic import Field
+
+from schemas import Command, IrBackendRequest, IrBackendStatus, IrCommand
+from schemas.keys import IR_BACKEND, IR_COMMAND, SIM_IR
+from services.config import ServiceSettings
+from services.ir_transmitter.backends import BackendError, IrBackend, make_backend
+
+
+class Settings(ServiceSettings):
+    backend: Literal["serial", "lirc", "sim", "log"] = "log"
+    options: dict[str, Any] = Field(default_factory=dict)
+    min_gap_s: float = Field(default=0.06, ge=0.0, description="between IR frames (>= 30 ms)")
+    repeat_window_s: float = Field(default=0.5, ge=0.0)
+    fresh_s: float = Field(default=1.0, gt=0.0)
+
+
+class Transmitter:
+    """Sequencing, coalescing, counters and hot swap around one backend (no bus inside)."""
+
+    def __init__(self, backend: IrBackend, config: Settings) -> None:
+        self.backend, self.config = backend, config
+        self.sent = self.failed = self.coalesced = 0
+        self.last_error = ""
+        self._last: tuple[Command, float] | None = None
+        self._pending: IrCommand | None = None  # latest command that failed to go out
+
+    def status(self) -> IrBackendStatus:
+        return IrBackendStatus(backend=self.backend.name, options=self.backend.options,
+                               sent=self.sent, failed=self.failed, coalesced=self.coalesced,
+                               connected=self.backend.connected, last_error=self.last_error)
+
+    async def send(self, cmd: IrCommand) -> bool:
+        now = time.monotonic()
+        if (self._last and self._last[0] is cmd.command
+                and now - self._last[1] < self.config.repeat_window_s):
+            self.coalesced += 1
+            return True
+        if self._last is not None:
+            wait = self.config.min_gap_s - (now - self._last[1])
+            if wait > 0:
+                await asyncio.sleep(wait)
+        try:
+            await asyncio.to_thread(self.backend.send, cmd)
+        except BackendError as err:
+            self.failed += 1
+            self.last_error = str(err)
+            self._pending = cmd
+            return False
+        self.sent += 1
+        self._pending = None
+        self._last = (cmd.command, time.monotonic())
+        return True
+
+    async def retry_pending(self) -> None:
+        """After a reconnect: resend the latest failed command if still fresh."""
+        cmd = self._pending
+        if cmd is None:
+            return
+        age = (time.time_ns() - cmd.stamp_ns) / 1e9
+        if age > self.config.fresh_s:
+            self._pending = None
+            return
+        reconnect = getattr(self.backend, "reconnect", None)
+        if reconnect is not None and await asyncio.to_thread(reconnect):
+            await self.send(cmd)
+
+    def swap(self, backend: IrBackend) -> None:
+        old, self.backend = self.backend, backend
+        self._last = None
+        old.close()
+
+
+async def main(ctx, config: Settings) -> None:
+    bus, log = ctx.bus, ctx.log
+
+    def publish_sim(cmd: IrCommand) -> None:
+        bus.put(SIM_IR, cmd)
+
+    tx = Transmitter(make_backend(config.backend, dict(config.options), publish_sim), config)
+    log.info("IR backend %s %s", tx.backend.name, tx.backend.options)
+    commands = bus.subscribe(IR_COMMAND, IrCommand, latest=False, queue=64)
+    requests = bus.subscribe(IR_BACKEND, IrBackendRequest, latest=False, queue=8)
+    bus.declare_queryable(IR_BACKEND, tx.status)
+    try:
+        while True:
+            cmd_task = asyncio.ensure_future(commands.recv())
+            req_task = asyncio.ensure_future(requests.recv())
+            done, _ = await asyncio.wait({cmd_task, req_task}, timeout=0.5,
+                                         return_when=asyncio.FIRST_COMPLETED)
+            for task in (cmd_task, req_task):
+                if task not in done:
+                    task.cancel()
+            # a cancelled recv() may have taken nothing; results of finished ones are used
+            if req_task in done:
+                req = req_task.result()
+                try:
+                    new = make_backend(req.backend, dict(req.options), publish_sim)
+                except Exception as err:
+                    tx.last_error = f"backend request rejected: {err}"
+                    log.warning("%s; keeping %s", tx.last_error, tx.backend.name)
+                else:
+                    log.info("IR backend %s -> %s %s", tx.backend.name, new.name, new.options)
+                    tx.swap(new)
+            if cmd_task in done:
+                cmd = cmd_task.result()
+                if not await tx.send(cmd):
+                    log.warning("IR %s not sent: %s", cmd.command.value, tx.last_error)
+            else:
+                await tx.retry_pending()
+    finally:
+        try:
+            await asyncio.wait_for(asyncio.to_thread(tx.backend.send,
+                                                     IrCommand(command=Command.STOP)), 1.0)
+            log.info("sent stop at shutdown")
+        except Exception as err:
+            log.error("could not send stop at shutdown: %s", err)
+        tx.backend.close()

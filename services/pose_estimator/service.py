@@ -1,0 +1,123 @@
+"""The ``pose_estimator`` service: ``marker/vertices`` + ``camera/odom`` -> ``humanoid/pose``."""
+
+from __future__ import annotations
+
+import asyncio
+from collections import deque
+
+import numpy as np
+from pydantic import Field
+
+from schemas import CameraIntrinsics, CameraPose, HumanoidPose, MarkerInCamera, MarkerVertices
+from schemas.keys import HUMANOID_POSE, INTRINSICS, ODOM, VERTICES
+from services.camera import CameraModel
+from services.config import RelPath, ServiceSettings
+from services.geometry import T_floor, inv_T, quaternion_from_R
+from services.pose_estimator.estimate import (
+    estimate_marker_pose,
+    humanoid_floor_pose,
+    up_in_camera,
+)
+from services.pose_estimator.p4p import PoseError
+
+
+class Settings(ServiceSettings):
+    intrinsics: RelPath | None = Field(default=None,
+                                       description="TOML file; else served on camera/intrinsics")
+    odom_timeout_s: float = Field(default=0.5, gt=0.0)
+    static_camera_pose: tuple[float, float, float] | None = Field(
+        default=None, description="x m, y m, yaw rad of a camera that does not move")
+    refine: bool = True
+    vertex_sigma_px: float = Field(default=0.2, gt=0.0, description="vertex noise, 1-sigma px")
+
+
+class PoseEstimator:
+    """Turns vertices into poses; holds the intrinsics, mounts and latest odometry."""
+
+    def __init__(self, camera: CameraModel, geometry, config: Settings) -> None:
+        self.camera = camera
+        self.config = config
+        self.points = geometry.marker_points()
+        self.T_base_camera = geometry.T_base_camera()
+        self.T_marker_humanoid = inv_T(geometry.T_humanoid_marker())
+        self.up_cam = up_in_camera(self.T_base_camera)
+        self.odom: deque[CameraPose] = deque(maxlen=64)  # recent odometry, oldest first
+
+    def estimate(self, msg: MarkerVertices) -> HumanoidPose:
+        """Raises PoseError when the vertices give no pose."""
+        if not msg.found or msg.vertices_px is None:
+            raise PoseError(f"marker not found: {msg.reason}")
+        if msg.width and (msg.width, msg.height) != (self.camera.width, self.camera.height):
+            raise PoseError(f"frame is {msg.width}x{msg.height} but the intrinsics are for "
+                            f"{self.camera.width}x{self.camera.height}")
+        mp = estimate_marker_pose(self.camera, np.array(msg.vertices_px), self.points,
+                                  up_cam=self.up_cam, refine_steps=5 if self.config.refine else 0,
+                                  sigma_px=self.config.vertex_sigma_px)
+        T = mp.T_camera_marker
+        marker = MarkerInCamera(position=tuple(float(v) for v in T[:3, 3]),  # type: ignore[arg-type]
+                                quaternion=quaternion_from_R(T[:3, :3]))
+        base_pose, reason = self._camera_base_pose(msg.stamp_ns)
+        if base_pose is None:
+            return HumanoidPose(seq=msg.seq, stamp_ns=msg.stamp_ns, marker_in_camera=marker,
+                                reprojection_px=mp.reprojection_px, reason=reason,
+                                area_ratio=msg.area_ratio)
+        T_world_camera = T_floor(*base_pose) @ self.T_base_camera
+        (x, y, yaw), cov = humanoid_floor_pose(T_world_camera, T, self.T_marker_humanoid,
+                                               mp.covariance)
+        cov_rows = tuple(tuple(float(c) for c in row) for row in cov) if cov is not None else None
+        return HumanoidPose(seq=msg.seq, stamp_ns=msg.stamp_ns, x=x, y=y, yaw=yaw,
+                            marker_in_camera=marker, reprojection_px=mp.reprojection_px,
+                            covariance=cov_rows, area_ratio=msg.area_ratio)  # type: ignore[arg-type]
+
+    def _camera_base_pose(self, stamp_ns: int) -> tuple[tuple[float, float, float] | None, str]:
+        if self.config.static_camera_pose is not None:
+            return self.config.static_camera_pose, ""
+        if not self.odom:
+            return None, "no camera odometry received"
+        nearest = min(self.odom, key=lambda o: abs(o.stamp_ns - stamp_ns))
+        lag = abs(stamp_ns - nearest.stamp_ns) / 1e9
+        if lag > self.config.odom_timeout_s:
+            return None, f"camera odometry is {lag:.2f} s from the frame"
+        return (nearest.x, nearest.y, nearest.yaw), ""
+
+
+async def _intrinsics(ctx, config: Settings) -> CameraModel:
+    if config.intrinsics is not None:
+        return CameraModel.load(config.intrinsics)
+    waited = 0.0
+    while True:
+        replies = await ctx.bus.get(INTRINSICS, CameraIntrinsics, timeout=1.0)
+        if replies:
+            return CameraModel.from_message(replies[0])
+        waited += 1.0
+        if waited in (2.0, 10.0, 60.0):
+            ctx.log.warning("no intrinsics on camera/intrinsics after %.0f s; still asking",
+                            waited)
+        await asyncio.sleep(0.5)
+
+
+async def main(ctx, config: Settings) -> None:
+    bus, log = ctx.bus, ctx.log
+    vertices = bus.subscribe(VERTICES, MarkerVertices, latest=True)
+    odom = bus.subscribe(ODOM, CameraPose, latest=False, queue=64)
+    updates = bus.subscribe(INTRINSICS, CameraIntrinsics, latest=True)
+    camera = await _intrinsics(ctx, config)
+    log.info("intrinsics %dx%d fx=%.1f fy=%.1f", camera.width, camera.height, camera.K[0, 0],
+             camera.K[1, 1])
+    est = PoseEstimator(camera, ctx.deployment.geometry, config)
+    failures: set[str] = set()
+    async for msg in vertices:
+        while (o := odom.get_nowait()) is not None:
+            est.odom.append(o)
+        if config.intrinsics is None and (k := updates.get_nowait()) is not None:
+            est.camera = CameraModel.from_message(k)
+        if not msg.found:
+            continue
+        try:
+            pose = est.estimate(msg)
+        except PoseError as err:
+            if str(err) not in failures:
+                failures.add(str(err))
+                log.warning("no pose for frame %d: %s", msg.seq, err)
+            continue
+        bus.put(HUMANOID_POSE, pose)

@@ -1,0 +1,71 @@
+"""The wheeled camera robot: a unicycle that drives to the latest goal within limits."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
+
+from services.geometry import wrap_angle
+from services.sim.world import World
+
+
+class CameraRobotParams(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    max_speed_mps: float = Field(default=0.25, gt=0.0)
+    max_accel_mps2: float = Field(default=0.5, gt=0.0)
+    max_yaw_rate_radps: float = Field(default=1.5, gt=0.0)
+    radius_m: float = Field(default=0.08, gt=0.0)
+    position_tolerance_m: float = Field(default=0.005, gt=0.0)
+    odom_noise_m: float = Field(default=0.0, ge=0.0, description="1-sigma localisation noise")
+    odom_noise_rad: float = Field(default=0.0, ge=0.0)
+
+
+class CameraRobot:
+    """Pose (x m, y m, yaw rad) in the world and forward speed (m/s)."""
+
+    def __init__(self, x: float, y: float, yaw: float,
+                 params: CameraRobotParams | None = None, seed: int = 0) -> None:
+        self.x, self.y, self.yaw = x, y, yaw
+        self.v = 0.0
+        self.params = params or CameraRobotParams()
+        self.goal: tuple[float, float, float] | None = None
+        self.blocked = False
+        self._rng = np.random.default_rng(seed + 7919)
+
+    def step(self, dt: float, world: World | None = None) -> None:
+        """Drive towards the goal for ``dt`` seconds; never into an obstacle."""
+        p = self.params
+        v_target = w = 0.0
+        if self.goal is not None:
+            gx, gy, gyaw = self.goal
+            dx, dy = gx - self.x, gy - self.y
+            rho = math.hypot(dx, dy)
+            if rho > p.position_tolerance_m:
+                alpha = wrap_angle(math.atan2(dy, dx) - self.yaw)
+                sign = 1.0
+                if abs(alpha) > math.pi / 2:  # closer to back up than to turn around
+                    alpha, sign = wrap_angle(alpha + math.pi), -1.0
+                w = 3.0 * alpha
+                v_target = sign * min(p.max_speed_mps, 1.5 * rho) * max(0.0, math.cos(alpha))
+            else:
+                w = 3.0 * wrap_angle(gyaw - self.yaw)
+        w = max(-p.max_yaw_rate_radps, min(p.max_yaw_rate_radps, w))
+        dv = max(-p.max_accel_mps2 * dt, min(p.max_accel_mps2 * dt, v_target - self.v))
+        self.v += dv
+        nx = self.x + self.v * dt * math.cos(self.yaw)
+        ny = self.y + self.v * dt * math.sin(self.yaw)
+        self.blocked = world is not None and world.collides(nx, ny, p.radius_m)
+        if self.blocked:
+            self.v = 0.0
+        else:
+            self.x, self.y = nx, ny
+        self.yaw = wrap_angle(self.yaw + w * dt)
+
+    def odometry(self) -> tuple[float, float, float]:
+        """The pose as the robot's locating system reports it (with configured noise)."""
+        p = self.params
+        n = self._rng.standard_normal(3)
+        return (self.x + p.odom_noise_m * n[0], self.y + p.odom_noise_m * n[1],
+                wrap_angle(self.yaw + p.odom_noise_rad * n[2]))

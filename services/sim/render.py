@@ -1,0 +1,211 @@
+"""The simulated camera's view: the magenta rhombus on the humanoid's back, with clutter.
+
+The rhombus is drawn with area-exact anti-aliasing up to 1/256 px² (16 x 16 supersampling over
+its bounding box, then area averaging), through the camera's full distortion model (edges are
+densely sampled before projection, so they bend as a real lens bends them). A render is
+deterministic given its style's seed and the frame index.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from functools import lru_cache
+
+import cv2
+import numpy as np
+
+from services.camera import CameraModel
+from services.geometry import inv_T
+
+MAGENTA_BGR = (255, 0, 255)
+BODY_BGR = (58, 62, 66)
+SUPERSAMPLE = 16
+SHIFT = 4  # fillPoly fractional bits inside the supersampled grid
+
+
+@dataclass(frozen=True)
+class RenderStyle:
+    """How a frame looks: seed for the clutter, gain, noise (grey levels, 1-sigma), blur."""
+
+    seed: int = 0
+    brightness: float = 1.0
+    noise_sigma: float = 2.0
+    motion_blur_px: float = 0.0
+    motion_blur_angle_deg: float = 0.0
+    clutter: bool = True
+    distractors: bool = True
+    marker_bgr: tuple[int, int, int] = MAGENTA_BGR
+    draw_body: bool = True
+    background_level: int | None = None  # flat grey background instead of clutter
+
+
+@dataclass(frozen=True)
+class Rendered:
+    """A rendered frame with its ground truth."""
+
+    image: np.ndarray                 # H x W x 3 uint8 BGR
+    vertices_px: np.ndarray | None    # (4, 2) left, top, right, bottom; None if not drawn
+    T_camera_marker: np.ndarray       # 4x4
+    marker_visible: bool              # drawn, facing the camera and wholly inside the image
+    coverage_area_px: float           # rendered marker area (sum of coverage)
+
+
+@lru_cache(maxsize=8)
+def _background(width: int, height: int, seed: int, clutter: bool, distractors: bool,
+                level: int | None) -> np.ndarray:
+    if level is not None:
+        return np.full((height, width, 3), level, np.uint8)
+    rng = np.random.default_rng(seed)
+    img = np.empty((height, width, 3), np.uint8)
+    horizon = int(height * rng.uniform(0.35, 0.55))
+    wall = np.array([rng.uniform(170, 215), rng.uniform(175, 215), rng.uniform(170, 205)])
+    floor = np.array([rng.uniform(80, 120), rng.uniform(105, 140), rng.uniform(130, 165)])
+    ramp = np.linspace(0.85, 1.1, height)[:, None, None]
+    img[:horizon] = np.clip(wall * ramp[:horizon], 0, 255).astype(np.uint8)
+    img[horizon:] = np.clip(floor * ramp[horizon:], 0, 255).astype(np.uint8)
+    if clutter:
+        for _ in range(14):
+            colour = _neutral_colour(rng)
+            x, y = int(rng.uniform(0, width)), int(rng.uniform(0, height))
+            w, h = int(rng.uniform(15, 120)), int(rng.uniform(10, 90))
+            if rng.random() < 0.5:
+                cv2.rectangle(img, (x, y), (x + w, y + h), colour, -1, cv2.LINE_AA)
+            else:
+                cv2.ellipse(img, (x, y), (w // 2, h // 2), float(rng.uniform(0, 180)), 0, 360,
+                            colour, -1, cv2.LINE_AA)
+        for _ in range(40):
+            p1 = (int(rng.uniform(0, width)), int(rng.uniform(0, height)))
+            p2 = (p1[0] + int(rng.normal(0, 60)), p1[1] + int(rng.normal(0, 60)))
+            cv2.line(img, p1, p2, _neutral_colour(rng), 1, cv2.LINE_AA)
+    if distractors:
+        # Pinkish things a naive magenta test would take: hot pink, light pink, salmon, purple.
+        pinks = [(180, 105, 255), (203, 192, 255), (147, 20, 255), (200, 80, 170),
+                 (120, 110, 250)]
+        for colour in pinks:
+            x, y = int(rng.uniform(0, width)), int(rng.uniform(0, height))
+            r = int(rng.uniform(8, 30))
+            if rng.random() < 0.5:
+                cv2.circle(img, (x, y), r, colour, -1, cv2.LINE_AA)
+            else:
+                cv2.rectangle(img, (x, y), (x + 2 * r, y + r), colour, -1, cv2.LINE_AA)
+    img.setflags(write=False)
+    return img
+
+
+def _neutral_colour(rng: np.random.Generator) -> tuple[int, int, int]:
+    while True:
+        b, g, r = (int(v) for v in rng.integers(0, 256, 3))
+        if not (g < 0.6 * min(r, b) and min(r, b) > 60):  # never marker-like
+            return b, g, r
+
+
+def _edge_samples(points_m: np.ndarray, per_edge: int) -> np.ndarray:
+    """Closed polygon boundary sampled densely (so distortion bends its edges)."""
+    a, b = points_m, np.roll(points_m, -1, axis=0)
+    t = np.linspace(0.0, 1.0, per_edge, endpoint=False)[None, :, None]
+    return (a[:, None, :] * (1 - t) + b[:, None, :] * t).reshape(-1, 3)
+
+
+def coverage_mask(polygon_px: np.ndarray, x0: int, y0: int, w: int, h: int) -> np.ndarray:
+    """Fraction of each pixel of the box (x0, y0, w, h) covered by a polygon (float32 0..1).
+
+    Pixel (i, j) covers [j - 0.5, j + 0.5] x [i - 0.5, i + 0.5] (pixel centres at integers).
+    """
+    s = SUPERSAMPLE
+    canvas = np.zeros((h * s, w * s), np.uint8)
+    # supersampled coordinate of a point: (x - x0 + 0.5) * s, minus half a subpixel because
+    # fillPoly samples at subpixel centres.
+    sub = ((polygon_px - [x0 - 0.5, y0 - 0.5]) * s - 0.5) * (1 << SHIFT)
+    cv2.fillPoly(canvas, [np.round(sub).astype(np.int32)], 1, cv2.LINE_8, SHIFT)
+    return cv2.resize(canvas.astype(np.float32), (w, h), interpolation=cv2.INTER_AREA)
+
+
+def _body_corners(T_camera_humanoid: np.ndarray) -> list[np.ndarray]:
+    boxes = [((-0.045, 0.045), (-0.08, 0.08), (0.06, 0.34)),   # torso and head
+             ((-0.03, 0.03), (-0.07, 0.07), (0.0, 0.06))]       # legs
+    out = []
+    for (x0, x1), (y0, y1), (z0, z1) in boxes:
+        c = np.array([[x, y, z, 1.0] for x in (x0, x1) for y in (y0, y1) for z in (z0, z1)])
+        out.append((T_camera_humanoid @ c.T).T[:, :3])
+    return out
+
+
+def render_view(camera: CameraModel, T_camera_marker: np.ndarray, *,
+                marker_points_m: np.ndarray,
+                T_camera_humanoid: np.ndarray | None = None,
+                style: RenderStyle | None = None, frame_index: int = 0,
+                draw_marker: bool = True) -> Rendered:
+    """Render one frame.
+
+    Args:
+        camera: intrinsics, distortion and size.
+        T_camera_marker: marker frame -> camera optical frame, 4x4 (m).
+        marker_points_m: (4, 3) rhombus vertices in the marker frame, left, top, right, bottom.
+        T_camera_humanoid: humanoid frame -> camera, to draw its body (optional).
+        style: look of the frame; ``frame_index`` varies the noise deterministically.
+    """
+    style = style or RenderStyle()
+    W, H = camera.width, camera.height
+    img = _background(W, H, style.seed, style.clutter, style.distractors,
+                      style.background_level).astype(np.float32)
+    if style.draw_body and T_camera_humanoid is not None:
+        for corners in _body_corners(T_camera_humanoid):
+            if np.all(corners[:, 2] > 0.02):
+                hull = cv2.convexHull(camera.project(corners).astype(np.float32))
+                cv2.fillConvexPoly(img, np.round(hull * 16).astype(np.int32), BODY_BGR,
+                                   cv2.LINE_AA, 4)
+    verts_cam = (T_camera_marker[:3, :3] @ marker_points_m.T).T + T_camera_marker[:3, 3]
+    normal = T_camera_marker[:3, 2]
+    facing = float(normal @ T_camera_marker[:3, 3]) < 0 and bool(np.all(verts_cam[:, 2] > 0.01))
+    vertices_px = camera.project(verts_cam) if np.all(verts_cam[:, 2] > 0.01) else None
+    area = 0.0
+    if draw_marker and facing and vertices_px is not None:
+        boundary = camera.project(_edge_samples(verts_cam, 48))
+        lo = np.floor(boundary.min(0) - 1).astype(int)
+        hi = np.ceil(boundary.max(0) + 1).astype(int)
+        x0, y0 = max(lo[0], 0), max(lo[1], 0)
+        x1, y1 = min(hi[0], W - 1), min(hi[1], H - 1)
+        if x1 > x0 and y1 > y0:
+            cov = coverage_mask(boundary, x0, y0, x1 - x0 + 1, y1 - y0 + 1)[..., None]
+            roi = img[y0:y1 + 1, x0:x1 + 1]
+            roi *= 1.0 - cov
+            roi += cov * np.array(style.marker_bgr, np.float32)
+            area = float(cov.sum())
+    if style.brightness != 1.0:
+        img *= style.brightness
+    if style.motion_blur_px > 0.5:
+        img = cv2.filter2D(img, -1, _blur_kernel(style.motion_blur_px,
+                                                 style.motion_blur_angle_deg))
+    if style.noise_sigma > 0:
+        noise = np.empty((H, W, 3), np.float32)
+        cv2.setRNGSeed(style.seed * 1_000_003 + frame_index)
+        cv2.randn(noise, 0.0, style.noise_sigma)
+        img += noise
+    image = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+    visible = (facing and vertices_px is not None and draw_marker
+               and bool(np.all((vertices_px >= 0) & (vertices_px <= [W - 1, H - 1]))))
+    return Rendered(image, vertices_px, T_camera_marker, visible, area)
+
+
+@lru_cache(maxsize=16)
+def _blur_kernel(length: float, angle_deg: float) -> np.ndarray:
+    n = int(np.ceil(length)) | 1
+    k = np.zeros((n, n), np.float32)
+    c = n // 2
+    d = np.array([np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))])
+    for t in np.linspace(-length / 2, length / 2, 4 * n):
+        x, y = c + t * d
+        k[round(y), round(x)] += 1.0
+    return k / k.sum()
+
+
+def marker_view(T_camera_marker: np.ndarray) -> tuple[float, float]:
+    """(distance m, angle rad between the marker normal and the line of sight)."""
+    t = T_camera_marker[:3, 3]
+    dist = float(np.linalg.norm(t))
+    cos_a = float(-(T_camera_marker[:3, 2] @ t) / max(dist, 1e-12))
+    return dist, float(np.arccos(np.clip(cos_a, -1.0, 1.0)))
+
+
+def T_camera_from_world(T_world_camera: np.ndarray) -> np.ndarray:
+    return inv_T(T_world_camera)

@@ -1,0 +1,100 @@
+"""The ``sim`` service: steps the simulated world and publishes what a real robot would.
+
+Subscribes ``sim/ir`` (commands the humanoid receives) and ``camera/goal``; publishes
+``camera/frame`` at ``fps``, ``camera/odom``, ``sim/truth``, and answers ``camera/intrinsics``
+with the simulated camera's intrinsics.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import time
+
+from pydantic import Field
+
+from schemas import CameraGoal, CameraPose, IrCommand, MarkerInCamera, Pose2D, SimTruth
+from schemas.keys import CAMERA_GOAL, INTRINSICS, ODOM, SIM_IR, SIM_TRUTH
+from services.bus import encode_frame
+from services.camera import CameraModel
+from services.config import RelPath, ServiceSettings
+from services.geometry import quaternion_from_R
+from services.sim.camera_robot import CameraRobotParams
+from services.sim.humanoid import HumanoidParams
+from services.sim.render import RenderStyle
+from services.sim.state import SimWorld
+
+
+class Settings(ServiceSettings):
+    fps: float = Field(default=30.0, gt=0.0, le=1000.0)
+    seed: int = 0
+    intrinsics: RelPath | None = Field(default=None, description="TOML; default paper camera")
+    humanoid_start: tuple[float, float, float] = (0.29, 0.0, 0.0)
+    camera_start: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    humanoid: HumanoidParams = Field(default_factory=HumanoidParams)
+    camera_robot: CameraRobotParams = Field(default_factory=CameraRobotParams)
+    noise_sigma: float = Field(default=2.0, ge=0.0)
+    brightness: float = Field(default=1.0, gt=0.0)
+    brightness_wave: float = Field(default=0.1, ge=0.0, le=0.5,
+                                   description="slow lighting change, fraction")
+    motion_blur_px: float = Field(default=0.0, ge=0.0)
+    clutter: bool = True
+    jpeg_quality: int | None = Field(default=None, ge=10, le=100)
+    realtime: bool = Field(default=True, description="pace frames to the wall clock")
+    speedup: float = Field(default=1.0, gt=0.0, description="simulated s per wall-clock s")
+
+
+def build_world(config: Settings, geometry, world) -> SimWorld:
+    camera = CameraModel.load(config.intrinsics) if config.intrinsics else CameraModel.paper()
+    style = RenderStyle(seed=config.seed, brightness=config.brightness,
+                        noise_sigma=config.noise_sigma, motion_blur_px=config.motion_blur_px,
+                        clutter=config.clutter, distractors=config.clutter)
+    return SimWorld(camera=camera, geometry=geometry, world=world,
+                    humanoid_start=config.humanoid_start, camera_start=config.camera_start,
+                    humanoid=config.humanoid, camera_robot=config.camera_robot, style=style,
+                    seed=config.seed)
+
+
+async def main(ctx, config: Settings) -> None:
+    bus = ctx.bus
+    sim = build_world(config, ctx.deployment.geometry, ctx.deployment.world)
+    bus.declare_queryable(INTRINSICS, sim.camera.to_message)
+    bus.put(INTRINSICS, sim.camera.to_message())
+    commands = bus.subscribe(SIM_IR, IrCommand, latest=False, queue=32)
+    goals = bus.subscribe(CAMERA_GOAL, CameraGoal)
+    dt = 1.0 / config.fps
+    base_style = sim.style
+    next_tick = time.monotonic()
+    seq = 0
+    while True:
+        while (cmd := commands.get_nowait()) is not None:
+            sim.command(cmd.command)
+        if (goal := goals.get_nowait()) is not None:
+            sim.robot.goal = (goal.x, goal.y, goal.yaw)
+        sim.step(dt)
+        if config.brightness_wave:
+            gain = 1.0 + config.brightness_wave * math.sin(2 * math.pi * sim.time_s / 7.0)
+            sim.style = RenderStyle(**{**base_style.__dict__,
+                                       "brightness": base_style.brightness * gain})
+        rendered = sim.render()
+        stamp = time.time_ns()
+        header, payload = encode_frame(rendered.image, seq, stamp, config.jpeg_quality)
+        bus.put_frame(header, payload)
+        ox, oy, oyaw = sim.robot.odometry()
+        bus.put(ODOM, CameraPose(stamp_ns=stamp, x=ox, y=oy, yaw=oyaw))
+        T = rendered.T_camera_marker
+        h, r = sim.humanoid, sim.robot
+        bus.put(SIM_TRUTH, SimTruth(
+            stamp_ns=stamp, seq=seq, humanoid=Pose2D(x=h.x, y=h.y, yaw=h.yaw),
+            camera=Pose2D(x=r.x, y=r.y, yaw=r.yaw),
+            marker_in_camera=MarkerInCamera(position=tuple(T[:3, 3]),  # type: ignore[arg-type]
+                                            quaternion=quaternion_from_R(T[:3, :3]))))
+        seq += 1
+        if config.realtime:
+            next_tick += dt / config.speedup
+            delay = next_tick - time.monotonic()
+            if delay < -0.5:  # fell far behind: resynchronise rather than burst
+                next_tick = time.monotonic()
+            await asyncio.sleep(max(0.0, delay))
+        else:
+            await asyncio.sleep(0)

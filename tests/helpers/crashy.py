@@ -1,0 +1,21 @@
+"""A service for launcher tests: crashes on its first two starts, then runs."""
+
+from __future__ import annotations
+
+import asyncio
+
+from services.config import ServiceSettings
+
+STARTS: list[int] = []
+
+
+class Settings(ServiceSettings):
+    pass
+
+
+async def main(ctx, config: Settings) -> None:
+    STARTS.append(len(STARTS))
+    if len(STARTS) <= 2:
+        raise RuntimeError(f"deliberate crash number {len(STARTS)}")
+    while True:
+        await asyncio.sleep(0.1)

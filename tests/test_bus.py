@@ -1,0 +1,152 @@
+import asyncio
+import json
+import time
+import tracemalloc
+
+import numpy as np
+import pytest
+
+from schemas import CameraPose, IrCommand
+from schemas.keys import FRAME, IR_COMMAND, ODOM
+from services.bus import encode_frame
+
+
+async def _settle() -> None:
+    await asyncio.sleep(0.3)
+
+
+def test_typed_round_trip(make_bus):
+    async def go():
+        a, b = make_bus("a"), make_bus("b")
+        sub = b.subscribe(ODOM, CameraPose)
+        await _settle()
+        a.put(ODOM, CameraPose(x=1.0, y=2.0, yaw=0.5))
+        msg = await sub.recv(timeout=3)
+        assert (msg.x, msg.y, msg.yaw) == (1.0, 2.0, 0.5)
+    asyncio.run(go())
+
+
+def test_bounded_queue_keeps_order_and_drops_oldest(make_bus):
+    async def go():
+        a, b = make_bus("a"), make_bus("b")
+        sub = b.subscribe(IR_COMMAND, IrCommand, latest=False, queue=4)
+        await _settle()
+        cmds = ["walk_forward", "turn_left", "turn_right", "stop", "walk_backward", "stop"]
+        for c in cmds:
+            a.put(IR_COMMAND, IrCommand(command=c))
+        await asyncio.sleep(0.5)
+        got = [sub.get_nowait() for _ in range(sub.pending())]
+        assert [m.command.value for m in got] == cmds[-4:]
+        assert sub.dropped == 2
+    asyncio.run(go())
+
+
+def test_latest_value_under_frame_flood_keeps_memory_flat_and_delivers_newest(make_bus):
+    image = np.random.default_rng(0).integers(0, 255, (480, 640, 3), dtype=np.uint8)
+
+    async def go():
+        a, b = make_bus("pub"), make_bus("sub")
+        frames = b.subscribe_frames(latest=True)
+        await _settle()
+        tracemalloc.start()
+        base = None
+        for seq in range(600):
+            header, payload = encode_frame(image, seq, time.time_ns())
+            a.put_frame(header, payload)
+            if seq == 100:
+                await asyncio.sleep(0.2)
+                base = tracemalloc.get_traced_memory()[0]
+            if seq % 50 == 0:
+                await asyncio.sleep(0)  # the consumer is slow: it barely runs
+        await asyncio.sleep(1.0)
+        grown = tracemalloc.get_traced_memory()[0] - base
+        tracemalloc.stop()
+        assert frames.pending() <= 1
+        last = await frames.recv(timeout=2)
+        assert last.header.seq == 599
+        assert last.image.shape == (480, 640, 3) and np.array_equal(last.image, image)
+        assert frames.dropped > 100
+        assert grown < 5 * image.nbytes, f"memory grew by {grown / 1e6:.1f} MB"
+    asyncio.run(go())
+
+
+BAD_PAYLOADS = [b"", b"not json", b"{}", b'{"x": "a", "y": 0, "yaw": 0}',
+                b'{"x": NaN, "y": 0, "yaw": 0}', b"\xff\xfe" * 50, b"[1, 2, 3]",
+                json.dumps({"x": 1e400, "y": 0, "yaw": 0}).encode()]
+
+
+def test_malformed_payloads_are_counted_and_the_next_valid_one_arrives(make_bus):
+    async def go():
+        a, b = make_bus("a"), make_bus("victim")
+        sub = b.subscribe(ODOM, CameraPose)
+        await _settle()
+        key = a.keys.key(ODOM)
+        for bad in BAD_PAYLOADS:
+            a.session.put(key, bad)
+        a.session.put(key, CameraPose(x=0, y=0, yaw=0).model_dump_json(),
+                      encoding="application/json;shepherd.CameraPose/2")
+        a.put(ODOM, CameraPose(x=7.0, y=0.0, yaw=0.0))
+        msg = await sub.recv(timeout=3)
+        assert msg.x == 7.0
+        assert b.rejections.total(key) == len(BAD_PAYLOADS) + 1
+        reasons = " ".join(r for (_, r) in b.rejections.counts)
+        assert "CameraPose/2" in reasons and "invalid CameraPose" in reasons
+    asyncio.run(go())
+
+
+@pytest.mark.parametrize("attachment,payload,reason", [
+    (None, b"xx", "without a header"),
+    (b"{bad", b"xx", "frame header"),
+    (b'{"seq":0,"stamp_ns":0,"width":4,"height":2,"encoding":"bgr8"}', b"x" * 5, "needs 24"),
+    (b'{"seq":0,"stamp_ns":0,"width":4,"height":2,"encoding":"bgr8"}', b"", "empty"),
+    (b'{"seq":0,"stamp_ns":0,"width":4,"height":2,"encoding":"jpeg"}', b"nojpeg", "JPEG"),
+    (b'{"seq":-1,"stamp_ns":0,"width":4,"height":2,"encoding":"bgr8"}', b"x" * 24, "seq"),
+])
+def test_bad_frames_are_rejected_with_a_reason(make_bus, attachment, payload, reason):
+    async def go():
+        a, b = make_bus("a"), make_bus("b")
+        frames = b.subscribe_frames()
+        await _settle()
+        a.session.put(a.keys.key(FRAME), payload, attachment=attachment)
+        header, data = encode_frame(np.zeros((2, 4, 3), np.uint8), 5, 1)
+        a.put_frame(header, data)
+        ok = await frames.recv(timeout=3)
+        assert ok.header.seq == 5
+        assert any(reason in r for (_, r) in b.rejections.counts), b.rejections.counts
+    asyncio.run(go())
+
+
+def test_jpeg_frames_round_trip(make_bus):
+    image = np.full((48, 64, 3), (255, 0, 255), np.uint8)
+
+    async def go():
+        a, b = make_bus("a"), make_bus("b")
+        frames = b.subscribe_frames()
+        await _settle()
+        header, data = encode_frame(image, 1, 2, jpeg_quality=90)
+        a.put_frame(header, data)
+        f = await frames.recv(timeout=3)
+        assert f.header.encoding.value == "jpeg" and f.image.shape == image.shape
+        assert np.abs(f.image.astype(int) - image).max() < 12
+    asyncio.run(go())
+
+
+def test_queryable_and_liveliness(make_bus):
+    async def go():
+        a, b = make_bus("server"), make_bus("client")
+        a.declare_alive()
+        a.declare_queryable(ODOM, lambda: CameraPose(x=3.0, y=0.0, yaw=0.0))
+        await _settle()
+        replies = await b.get(ODOM, CameraPose, timeout=2)
+        assert [r.x for r in replies] == [3.0]
+        alive = await asyncio.to_thread(
+            lambda: [str(r.ok.key_expr) for r in
+                     b.session.liveliness().get("shepherd/alive/**", timeout=1.0)])
+        assert "shepherd/alive/server" in alive
+        a.close()
+        await asyncio.sleep(0.3)
+        alive = await asyncio.to_thread(
+            lambda: [str(r.ok.key_expr) for r in
+                     b.session.liveliness().get("shepherd/alive/**", timeout=1.0)])
+        assert "shepherd/alive/server" not in alive
+    asyncio.run(go())

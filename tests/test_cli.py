@@ -1,0 +1,43 @@
+import asyncio
+import time
+
+from schemas import CameraPose, IrCommand, MissionGoal
+from schemas.keys import IR_COMMAND, MISSION_GOAL, ODOM
+from tests.conftest import run_cli, spawn_cli
+
+
+def test_echo_shows_messages_published_by_another_process(router, make_bus):
+    echo = spawn_cli("echo", "shepherd/**", "--connect", router, "--count", "2",
+                     "--duration", "20")
+    bus = make_bus("pub")
+    time.sleep(2.0)
+    bus.put(ODOM, CameraPose(x=0.5, y=-0.25, yaw=0.0))
+    bus.put(IR_COMMAND, IrCommand(command="turn_left"))
+    out, err = echo.communicate(timeout=30)
+    assert echo.returncode == 0, err
+    assert "camera/odom: x=50.0 cm y=-25.0 cm yaw=0.0°" in out
+    assert "ir/command: turn_left (0x88)" in out
+
+
+def test_typed_round_trip_between_processes(router, make_bus):
+    bus = make_bus("sub")
+
+    async def go():
+        cmds = bus.subscribe(IR_COMMAND, IrCommand, latest=False)
+        goals = bus.subscribe(MISSION_GOAL, MissionGoal, latest=False)
+        await asyncio.sleep(0.3)
+        out = await asyncio.to_thread(run_cli, "ir", "send", "walk_forward", "--connect",
+                                      router)
+        assert out.returncode == 0, out.stderr
+        assert (await cmds.recv(timeout=5)).code == 0x86
+        out = await asyncio.to_thread(run_cli, "mission", "goto", "0.6", "0", "0.8", "0.2",
+                                      "--connect", router)
+        assert out.returncode == 0, out.stderr
+        g = await goals.recv(timeout=5)
+        assert g.waypoints == [(0.6, 0.0), (0.8, 0.2)]
+    asyncio.run(go())
+
+
+def test_mission_goto_needs_pairs():
+    out = run_cli("mission", "goto", "0.6")
+    assert out.returncode == 2 and "X Y pairs" in out.stderr

@@ -1,0 +1,124 @@
+import asyncio
+import os
+import signal
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from schemas import IrCommand
+from schemas.keys import SIM_IR
+from services import registry
+from services.config import ConfigError, load_deployment, parse_deployment
+from services.launcher import run_deployment
+from tests.conftest import run_cli, spawn_cli
+from tests.helpers import crashy
+
+
+@pytest.mark.parametrize("text,message", [
+    ("[services.sim]\nfsp = 3\n", "services.sim.fsp: unknown key"),
+    ("[services.sim]\nfps = 'fast'\n", "services.sim.fps: Input should be a valid number"),
+    ("[services.teleport]\n", "unknown service 'teleport'"),
+    ("[zenoh]\nmode = 'server'\n", "zenoh.mode: String should match pattern"),
+    ("colour = 'blue'\n", "colour: unknown key"),
+    ("[services.sim\n", "not valid TOML"),
+])
+def test_bad_deployment_file_exits_2_naming_file_and_key(tmp_path: Path, text, message):
+    path = tmp_path / "bad.toml"
+    path.write_text(text)
+    with pytest.raises(ConfigError, match=r"bad\.toml"):
+        load_deployment(path)
+    out = run_cli("run", str(path))
+    assert out.returncode == 2
+    assert str(path) in out.stderr and message in out.stderr, out.stderr
+    assert len(out.stderr.strip().splitlines()) == 1
+
+
+def test_missing_file_exits_2(tmp_path: Path):
+    out = run_cli("run", str(tmp_path / "nope.toml"))
+    assert out.returncode == 2 and "cannot read deployment file" in out.stderr
+
+
+def test_paths_in_a_deployment_are_relative_to_it(tmp_path: Path):
+    dep = parse_deployment({"services": {"pose_estimator": {"intrinsics": "cam.toml"}}},
+                           tmp_path / "d.toml")
+    assert dep.settings_for("pose_estimator").intrinsics == tmp_path / "cam.toml"
+
+
+def test_a_crashing_service_is_restarted_with_backoff(monkeypatch, router):
+    monkeypatch.setitem(registry.SERVICES, "crashy", "tests.helpers.crashy")
+    crashy.STARTS.clear()
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"crashy": {}}})
+    t0 = time.monotonic()
+    code = asyncio.run(run_deployment(dep, duration=2.0))
+    assert code == 0
+    assert len(crashy.STARTS) == 3  # two crashes, then it stays up
+    assert time.monotonic() - t0 < 5.0
+
+
+def _alive(session: zenoh.Session) -> set[str]:
+    return {str(r.ok.key_expr).rsplit("/", 1)[-1]
+            for r in session.liveliness().get("shepherd/alive/**", timeout=1.0) if r.ok}
+
+
+def _wait(pred, timeout: float) -> bool:
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        if pred():
+            return True
+        time.sleep(0.1)
+    return False
+
+
+def test_killed_service_process_loses_its_token_and_is_restarted(tmp_path: Path, router,
+                                                                 sessions):
+    path = tmp_path / "dep.toml"
+    path.write_text(f'[zenoh]\nconnect = ["{router}"]\nmulticast_scouting = false\n'
+                    '[services.ir_transmitter]\nbackend = "log"\nprocess = true\n')
+    launcher = spawn_cli("run", str(path))
+    s = sessions()
+    try:
+        assert _wait(lambda: "ir_transmitter" in _alive(s), 20), "service never came up"
+        child = subprocess.run(["pgrep", "-P", str(launcher.pid)], capture_output=True,
+                               text=True).stdout.split()
+        assert child, "no child process found"
+        os.kill(int(child[0]), signal.SIGKILL)
+        assert _wait(lambda: "ir_transmitter" not in _alive(s), 10), "token survived SIGKILL"
+        assert _wait(lambda: "ir_transmitter" in _alive(s), 20), "service not restarted"
+    finally:
+        launcher.send_signal(signal.SIGTERM)
+        _, err = launcher.communicate(timeout=10)
+    assert "restarting" in err
+
+
+def test_sigterm_stops_everything_within_2s_and_sends_stop(tmp_path: Path, router, make_bus):
+    path = tmp_path / "dep.toml"
+    path.write_text(f'[zenoh]\nconnect = ["{router}"]\nmulticast_scouting = false\n'
+                    '[services.ir_transmitter]\nbackend = "sim"\n'
+                    '[services.mission_controller]\n')
+    bus = make_bus("observer")
+    s = bus.session
+    launcher = spawn_cli("run", str(path))
+    try:
+        assert _wait(lambda: {"ir_transmitter", "mission_controller"} <= _alive(s), 20)
+
+        async def observe() -> list[IrCommand]:
+            sub = bus.subscribe(SIM_IR, IrCommand, latest=False, queue=64)
+            await asyncio.sleep(0.3)
+            t0 = time.monotonic()
+            launcher.send_signal(signal.SIGTERM)
+            await asyncio.to_thread(launcher.wait, 5)
+            elapsed = time.monotonic() - t0
+            assert elapsed < 2.0, f"took {elapsed:.2f} s to stop"
+            await asyncio.sleep(0.3)
+            return [sub.get_nowait() for _ in range(sub.pending())]
+
+        got = asyncio.run(observe())
+        assert got and got[-1].command.value == "stop"
+    finally:
+        if launcher.poll() is None:
+            launcher.kill()
+        launcher.communicate()
