@@ -392,6 +392,8 @@ def encode_frame(image: np.ndarray, seq: int, stamp_ns: int, jpeg_quality: int |
             raise ValueError("JPEG encoding failed")
         enc, data = FrameEncoding.JPEG, buf.tobytes()
     else:
+        if image.ndim == 3 and image.shape[2] == 1:
+            image = image[..., 0]
         enc = FrameEncoding.BGR8 if image.ndim == 3 else FrameEncoding.MONO8
         data = np.ascontiguousarray(image).tobytes()
     return FrameHeader(seq=seq, stamp_ns=stamp_ns, width=width, height=height, encoding=enc), data

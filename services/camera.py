@@ -69,6 +69,15 @@ class CameraModel:
                 f"dist = [{dist}]  # k1, k2, p1, p2, k3 (OpenCV model)\n"
                 f"rms_px = {self.rms_px:.6g}\n{extra}")
 
+    def deskew_px(self, points_px: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Pixels and a K without skew that OpenCV's skew-free model reads the same way."""
+        K = self.K.copy()
+        pts = np.array(points_px, dtype=np.float64).reshape(-1, 2)
+        if K[0, 1] != 0.0:
+            pts[:, 0] -= K[0, 1] * (pts[:, 1] - K[1, 2]) / K[1, 1]
+            K[0, 1] = 0.0
+        return pts, K
+
     def project(self, points_cam: np.ndarray) -> np.ndarray:
         """Project points in the camera optical frame (N, 3) m to pixels (N, 2).
 

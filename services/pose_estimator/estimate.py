@@ -19,6 +19,7 @@ from services.pose_estimator.p4p import (
     covariance_6,
     ippe,
     refine,
+    residuals_and_jacobian,
 )
 
 
@@ -41,35 +42,33 @@ def undistort_px(camera: CameraModel, points_px: np.ndarray) -> np.ndarray:
         y = (pts[:, 0, 1] - K[1, 2]) / K[1, 1]
         x = (pts[:, 0, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
         return np.column_stack([x, y])
-    return cv2.undistortPointsIter(pts, camera.K, camera.dist, None, None,
-                                   (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
-                                   ).reshape(-1, 2)
-
-
-def choose_upright(candidates: list, up_cam: np.ndarray | None, ambiguity: float,
-                   min_gain_rad: float = math.radians(5.0)) -> int:
-    """Index of the candidate to keep (candidates sorted by reprojection error).
-
-    The humanoid stands upright, so the marker's normal is horizontal: its elevation
-    ``asin(|n . up|)`` is near zero whatever the marker's roll. The best reprojection wins
-    unless the other candidate explains the image about as well (error within 3x the best
-    plus ``ambiguity``, normalised units) and its normal is more level by ``min_gain_rad``.
-    ``up_cam`` is the world's up in the camera frame."""
-    if up_cam is None or len(candidates) < 2:
-        return 0
-    best, other = candidates[0], candidates[1]
-    if other.error > 3.0 * best.error + ambiguity:
-        return 0
-    tilt_best = math.asin(min(1.0, abs(float(best.R[:, 2] @ up_cam))))
-    tilt_other = math.asin(min(1.0, abs(float(other.R[:, 2] @ up_cam))))
-    return 1 if tilt_other < tilt_best - min_gain_rad else 0
+    deskewed, K = camera.deskew_px(pts)
+    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
+    src = deskewed.reshape(-1, 1, 2)
+    if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x
+        out = cv2.undistortPointsIter(src, K, camera.dist, None, None, criteria)
+    else:  # OpenCV 5 folds the criteria into undistortPoints
+        out = cv2.undistortPoints(src, K, camera.dist, None, None, None, criteria)
+    return out.reshape(-1, 2)
 
 
 def estimate_marker_pose(camera: CameraModel, vertices_px: np.ndarray, marker_points: np.ndarray,
                          *, up_cam: np.ndarray | None = None, refine_steps: int = 5,
-                         sigma_px: float = 0.2) -> MarkerPose:
+                         sigma_px: float = 0.2, tilt_sigma_rad: float = math.radians(3.0),
+                         ambiguity: float = 4.0, previous_R: np.ndarray | None = None,
+                         continuity_sigma_rad: float = math.radians(10.0)) -> MarkerPose:
     """Pose of the marker in the camera from its four pixel vertices (left, top, right,
-    bottom); raises PoseError with the reason when impossible."""
+    bottom); raises PoseError with the reason when impossible.
+
+    IPPE gives two candidates. With ``up_cam`` (the world's up in the camera frame) the
+    humanoid-stands-upright prior decides between them: both are refined to the maximum a
+    posteriori pose (reprojection error with image noise ``sigma_px``, plus the marker
+    normal level within ``tilt_sigma_rad``) and the lower posterior cost wins. The prior is
+    only consulted when the second candidate's reprojection error is within ``ambiguity``
+    image-noise sigmas; otherwise the image alone decides. Without ``up_cam`` or refinement,
+    the best reprojection wins. ``previous_R`` (the marker's rotation in the previous frame)
+    adds a continuity prior: rotation change within ``continuity_sigma_rad``.
+    """
     v = np.asarray(vertices_px, np.float64)
     if v.shape != (4, 2):
         raise PoseError(f"need 4 vertices (4, 2), got shape {v.shape}")
@@ -78,19 +77,31 @@ def estimate_marker_pose(camera: CameraModel, vertices_px: np.ndarray, marker_po
     q = undistort_px(camera, v)
     cands = ippe(marker_points, q)
     f = 0.5 * (camera.K[0, 0] + camera.K[1, 1])
-    k = choose_upright(cands, up_cam, ambiguity=2.0 * sigma_px / f)
-    R, t = cands[k].R, cands[k].t
+    sigma_n = sigma_px / f
+    chosen = 0
     if refine_steps:
-        R, t, J = refine(R, t, marker_points, q, refine_steps)
+        prior = None if up_cam is None else (up_cam, sigma_n / tilt_sigma_rad)
+        ambiguous = len(cands) > 1 and (prior is not None or previous_R is not None) and \
+            cands[1].error <= cands[0].error + ambiguity * sigma_n
+        options = [refine(c.R, c.t, marker_points, q, refine_steps, prior)
+                   for c in (cands if ambiguous else cands[:1])]
+        costs = [o[3] for o in options]
+        if previous_R is not None:
+            for i, o in enumerate(options):
+                turn = math.acos(max(-1.0, min(1.0, (np.trace(o[0].T @ previous_R) - 1) / 2)))
+                costs[i] += (sigma_n * turn / continuity_sigma_rad) ** 2
+        chosen = int(np.argmin(costs))
+        R, t, J, _ = options[chosen]
     else:
-        from services.pose_estimator.p4p import residuals_and_jacobian
+        R, t = cands[0].R, cands[0].t
         _, J = residuals_and_jacobian(R, t, marker_points, q)
     if t[2] <= 0:
         raise PoseError("the pose puts the marker behind the camera")
     proj = camera.project(marker_points @ R.T + t)
     reproj = float(np.sqrt(np.mean(np.sum((proj - v) ** 2, axis=1))))
-    cov = covariance_6(J, sigma_px / f)
-    return MarkerPose(make_T(R, t), reproj, cov, tuple(make_T(c.R, c.t) for c in cands), k)
+    cov = covariance_6(J, sigma_n)
+    return MarkerPose(make_T(R, t), reproj, cov, tuple(make_T(c.R, c.t) for c in cands),
+                      chosen)
 
 
 def humanoid_floor_pose(T_world_camera: np.ndarray, T_camera_marker: np.ndarray,

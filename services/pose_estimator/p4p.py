@@ -198,23 +198,48 @@ def residuals_and_jacobian(R: np.ndarray, t: np.ndarray, model: np.ndarray,
 
 
 def refine(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray,
-           iterations: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Gauss-Newton on the reprojection error; returns R, t and the final Jacobian (2N, 6)."""
+           iterations: int = 5, prior: tuple[np.ndarray, float] | None = None
+           ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
+    """Gauss-Newton on the reprojection error, optionally with an upright prior.
+
+    ``prior = (up, weight)`` adds the residual ``weight * (n . up)``, n the marker normal
+    (R's third column) and ``up`` the world's up in the camera frame: with ``weight =
+    sigma_image / sigma_tilt`` the cost is the negative log posterior (times sigma_image²)
+    of a marker whose normal is level within sigma_tilt. Returns R, t, the reprojection
+    Jacobian (2N, 6) and the final cost (sum of squared residuals, normalised units).
+    """
+    def cost_of(R_: np.ndarray, t_: np.ndarray) -> float:
+        Xc = model @ R_.T + t_
+        if np.any(Xc[:, 2] <= 0):
+            return math.inf
+        d = Xc[:, :2] / Xc[:, 2:3] - q
+        c = float((d * d).sum())
+        if prior is not None:
+            c += (prior[1] * float(R_[:, 2] @ prior[0])) ** 2
+        return c
+
+    cost = cost_of(R, t)
     for _ in range(iterations):
         r, J = residuals_and_jacobian(R, t, model, q)
+        if prior is not None:
+            up, w = prior
+            n = R[:, 2]
+            r = np.append(r, w * float(n @ up))
+            J = np.vstack([J, np.concatenate([w * np.cross(n, up), np.zeros(3)])])
         JTJ = J.T @ J
         try:
             delta = -np.linalg.solve(JTJ + 1e-12 * np.eye(6), J.T @ r)
         except np.linalg.LinAlgError:
             break
         R_new, t_new = _exp_so3(delta[:3]) @ R, t + delta[3:]
-        if reprojection_rms(R_new, t_new, model, q) > reprojection_rms(R, t, model, q):
+        new_cost = cost_of(R_new, t_new)
+        if new_cost > cost:
             break
-        R, t = R_new, t_new
+        R, t, cost = R_new, t_new, new_cost
         if float(np.linalg.norm(delta)) < 1e-12:
             break
     _, J = residuals_and_jacobian(R, t, model, q)
-    return R, t, J
+    return R, t, J, cost
 
 
 def covariance_6(J: np.ndarray, sigma_normalised: float) -> np.ndarray:

@@ -29,6 +29,8 @@ class Settings(ServiceSettings):
         default=None, description="x m, y m, yaw rad of a camera that does not move")
     refine: bool = True
     vertex_sigma_px: float = Field(default=0.2, gt=0.0, description="vertex noise, 1-sigma px")
+    continuity_window_s: float = Field(default=0.3, ge=0.0,
+                                       description="use the previous pose this recent as a prior")
 
 
 class PoseEstimator:
@@ -42,6 +44,7 @@ class PoseEstimator:
         self.T_marker_humanoid = inv_T(geometry.T_humanoid_marker())
         self.up_cam = up_in_camera(self.T_base_camera)
         self.odom: deque[CameraPose] = deque(maxlen=64)  # recent odometry, oldest first
+        self._previous: tuple[int, np.ndarray] | None = None  # (stamp_ns, R) of the last pose
 
     def estimate(self, msg: MarkerVertices) -> HumanoidPose:
         """Raises PoseError when the vertices give no pose."""
@@ -50,10 +53,14 @@ class PoseEstimator:
         if msg.width and (msg.width, msg.height) != (self.camera.width, self.camera.height):
             raise PoseError(f"frame is {msg.width}x{msg.height} but the intrinsics are for "
                             f"{self.camera.width}x{self.camera.height}")
+        recent = self._previous is not None and \
+            abs(msg.stamp_ns - self._previous[0]) < self.config.continuity_window_s * 1e9
         mp = estimate_marker_pose(self.camera, np.array(msg.vertices_px), self.points,
                                   up_cam=self.up_cam, refine_steps=5 if self.config.refine else 0,
-                                  sigma_px=self.config.vertex_sigma_px)
+                                  sigma_px=self.config.vertex_sigma_px,
+                                  previous_R=self._previous[1] if recent else None)
         T = mp.T_camera_marker
+        self._previous = (msg.stamp_ns, T[:3, :3])
         marker = MarkerInCamera(position=tuple(float(v) for v in T[:3, 3]),  # type: ignore[arg-type]
                                 quaternion=quaternion_from_R(T[:3, :3]))
         base_pose, reason = self._camera_base_pose(msg.stamp_ns)

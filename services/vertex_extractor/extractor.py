@@ -25,13 +25,14 @@ the marker's horizontal diagonal must be the wider one within about 35 degrees o
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 
 from services.vertex_extractor.colour import ColourModel
-from services.vertex_extractor.lines import best_split, distances, intersect, robust_fit
+from services.vertex_extractor.lines import Line, best_split, huber_fit, intersect, moment_rows
 
 
 @dataclass(frozen=True)
@@ -106,13 +107,13 @@ class RhombusExtractor:
 
     def _coarse_search(self, image: np.ndarray) -> tuple[int, int, int, int] | str:
         s = self.params.coarse_step
-        small = self.params.colour.mask(image[s // 2::s, s // 2::s])
-        count = int(small.sum())
+        small = self.params.colour.mask(np.ascontiguousarray(image[s // 2::s, s // 2::s]))
+        count = int(np.count_nonzero(small))
         if count == 0:
             return "no marker-coloured pixels"
         if count > 0.5 * small.size:
             return "most of the frame is marker-coloured"
-        _, _, stats, _ = cv2.connectedComponentsWithStats(small.view(np.uint8), connectivity=8)
+        _, _, stats, _ = cv2.connectedComponentsWithStats(small, connectivity=8)
         areas = stats[1:, cv2.CC_STAT_AREA]
         order = np.argsort(areas)[::-1]
         best = order[0] + 1
@@ -125,143 +126,147 @@ class RhombusExtractor:
         x1, y1 = min(s // 2 + (x + w) * s + m, W), min(s // 2 + (y + h) * s + m, H)
         return int(x0), int(y0), int(x1), int(y1)
 
-    def _extract_in(self, image: np.ndarray, box: tuple[int, int, int, int],
-                    tracked: bool) -> Detection:
+    def _extract_in(self, image: np.ndarray, box: tuple[int, int, int, int], tracked: bool,
+                    separate_blobs: bool = False) -> Detection:
+        """Scan the box. Fast path: the colour mask's columns directly; if that gives no
+        plausible rhombus (another marker-coloured thing in the box), again on the largest
+        connected blob only."""
         p = self.params
         H, W = image.shape[:2]
         x0, y0, x1, y1 = box
-        roi = image[y0:y1, x0:x1]
+        roi = np.ascontiguousarray(image[y0:y1, x0:x1])  # OpenCV is slow on strided views
         mask = p.colour.mask(roi)
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(mask.view(np.uint8),
-                                                               connectivity=8)
-        if n < 2:
+        if separate_blobs:
+            n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+            if n < 2:
+                return _miss("no marker-coloured pixels", tracked)
+            best = int(np.argmax(stats[1:, cv2.CC_STAT_AREA])) + 1
+            mask = (labels == best).view(np.uint8)
+        has = mask.any(0)
+        area = int(np.count_nonzero(mask))
+        if area == 0:
             return _miss("no marker-coloured pixels", tracked)
-        best = int(np.argmax(stats[1:, cv2.CC_STAT_AREA])) + 1
-        bx, by, bw, bh, area = (int(v) for v in stats[best])
         if area < p.min_area_px:
             return _miss(f"marker too small ({area} px < {p.min_area_px:.0f} px)", tracked)
-        if bx + x0 <= 0 or by + y0 <= 0 or bx + bw + x0 >= W or by + bh + y0 >= H:
+        top = np.argmax(mask, 0)
+        bottom = mask.shape[0] - 1 - np.argmax(mask[::-1], 0)
+        xs = np.flatnonzero(has)
+        bx0, bx1 = int(xs[0]), int(xs[-1])
+        by0, by1 = int(top[has].min()), int(bottom[has].max())
+        if bx0 + x0 <= 0 or by0 + y0 <= 0 or bx1 + x0 >= W - 1 or by1 + y0 >= H - 1:
             return _miss("marker touches the image border", tracked)
         w = p.window
-        if bx < w + 1 or by < w + 1 or bx + bw > mask.shape[1] - w - 1 or \
-                by + bh > mask.shape[0] - w - 1:
-            # blob reaches the ROI edge: the box was too tight; retry on the whole frame once
-            if (x0, y0, x1, y1) != (0, 0, W, H) and tracked:
-                return self._extract_in(image, (0, 0, W, H), tracked)
+        rh, rw = mask.shape
+        if bx0 < 1 or by0 < w + 2 or bx1 > rw - 2 or by1 > rh - w - 3:
+            # the blob reaches the box edge: the box was too tight, look at the whole frame
+            if box != (0, 0, W, H):
+                return self._extract_in(image, (0, 0, W, H), tracked, separate_blobs)
             return _miss("marker touches the image border", tracked)
-        blob = labels[by:by + bh, bx:bx + bw] == best
-        has = blob.any(0)
-        top = np.argmax(blob, 0)
-        bottom = bh - 1 - np.argmax(blob[::-1], 0)
         chord = np.where(has, bottom - top + 1, 0)
         seed = int(np.argmax(chord))
         # Table 1: walk right and left from the seed column until a chord < MIN_LEN.
         short = chord < p.min_len_px
         right_stop = np.flatnonzero(short[seed:])
         left_stop = np.flatnonzero(short[:seed + 1][::-1])
-        hi = seed + (int(right_stop[0]) if right_stop.size else bw - seed)
+        hi = seed + (int(right_stop[0]) if right_stop.size else rw - seed)
         lo = seed - (int(left_stop[0]) if left_stop.size else seed + 1) + 1
         cols = np.arange(lo, hi, p.dx)
-        if cols.size < 2 * p.min_points_per_edge:
+        if cols.size < 2 * p.min_points_per_edge + 4:
             return _miss(f"marker too small ({cols.size} usable columns)", tracked)
-        score = ColourModel.score(roi)
-        s_in, s_out = _levels(score, mask, labels == best)
+        det = self._edges_and_fit(roi, cols, top[cols], bottom[cols], area, (x0, y0), (W, H),
+                                  tracked)
+        if not det.found and not separate_blobs and det.reason.startswith(_RETRYABLE):
+            return self._extract_in(image, box, tracked, separate_blobs=True)
+        return det
+
+    def _edges_and_fit(self, roi: np.ndarray, cols: np.ndarray, top: np.ndarray,
+                       bottom: np.ndarray, blob_area: int, offset: tuple[int, int],
+                       size: tuple[int, int], tracked: bool) -> Detection:
+        p = self.params
+        w = p.window
+        # levels: chord middles inside, just beyond each window outside
+        s_in = float(_score(roi[(top + bottom) // 2, cols]).mean())
+        outside = _score(np.concatenate([roi[top - w - 2, cols], roi[bottom + w + 2, cols]]))
+        s_out = float(np.partition(outside, len(outside) // 2)[len(outside) // 2])  # median
         if s_in - s_out < 20.0:
             return _miss(f"marker contrast too low ({s_in - s_out:.0f} grey levels)", tracked)
-        u_pts, d_pts = _subpixel_edges(score, cols, top[cols] + by, bottom[cols] + by, bx, w,
-                                       s_in, s_out)
-        u_pts += [x0, y0]
-        d_pts += [x0, y0]
-        return self._fit(u_pts, d_pts, area, (W, H), tracked)
+        inv = 1.0 / (s_in - s_out)
+        offs = np.arange(-w, w)[:, None]
+        cu = np.clip((_score(roi[top + offs, cols]) - s_out) * inv, -0.5, 1.5)
+        cd = np.clip((_score(roi[bottom + 1 + offs, cols]) - s_out) * inv, -0.5, 1.5)
+        # sum of coverages over a window across the edge = distance from its inner end
+        x = cols.astype(np.float64) + offset[0]
+        u_pts = np.column_stack([x, (top + w - 0.5) - cu.sum(0) + offset[1]])
+        d_pts = np.column_stack([x, (bottom - w + 0.5) + cd.sum(0) + offset[1]])
+        return self._fit(u_pts, d_pts, blob_area, size, tracked)
 
     def _fit(self, u_pts: np.ndarray, d_pts: np.ndarray, blob_area: int,
              size: tuple[int, int], tracked: bool) -> Detection:
         p = self.params
-        lines = []
-        inliers = []
+        lines: list[Line] = []
+        sq_sum, n_in = 0.0, 0
         for pts in (u_pts, d_pts):
-            k = best_split(pts, p.min_points_per_edge)
-            # drop the columns at the split: their window straddles the vertex
-            drop = 2
-            left, right = pts[:max(k - drop, 0)], pts[k + drop:]
-            if len(left) < p.min_points_per_edge or len(right) < p.min_points_per_edge:
-                return _miss("too few edge points on one side (partly hidden?)", tracked)
-            for part in (left, right):
-                line, keep = robust_fit(part)
-                if keep.sum() < p.min_points_per_edge:
-                    return _miss("edge points do not lie on a line (partly hidden?)", tracked)
-                lines.append(line)
-                inliers.append(distances(part[keep], line))
+            centre = pts.mean(0)
+            local = pts - centre  # moments about the centre keep the sums well conditioned
+            k = best_split(moment_rows(local), p.min_points_per_edge)
+            drop = 2  # the columns at the split: their window straddles the vertex
+            for part in (local[:max(k - drop, 0)], local[k + drop:]):
+                if len(part) < p.min_points_per_edge:
+                    return _miss("too few edge points on one side (partly hidden?)", tracked)
+                line, r2 = huber_fit(part)
+                sq_sum += r2.sum()
+                n_in += len(r2)
+                lines.append((line[0], line[1], line[2] + line[0] * centre[0]
+                              + line[1] * centre[1]))
         lu, ru, ld, rd = lines
         corners = [intersect(lu, ld), intersect(lu, ru), intersect(ru, rd), intersect(ld, rd)]
         if any(c is None for c in corners):
             return _miss("parallel edges: not a rhombus", tracked)
         v = np.array(corners)
-        residual = float(np.sqrt(np.mean(np.concatenate(inliers) ** 2)))
-        reason = _implausible(v, residual, blob_area, size, p)
+        residual = math.sqrt(sq_sum / n_in)
+        reason, area = _implausible(v, residual, blob_area, size, p)
         if reason:
             return _miss(reason, tracked)
-        x, y = v[:, 0], v[:, 1]
-        area = 0.5 * abs(float(x @ np.roll(y, -1) - y @ np.roll(x, -1)))
         return Detection(True, v, min(area / (size[0] * size[1]), 1.0), residual, "",
                          tracked, (u_pts, d_pts))
 
 
-def _levels(score: np.ndarray, mask: np.ndarray, blob: np.ndarray) -> tuple[float, float]:
-    """Inside and outside score levels: the blob's eroded interior and a ring around it."""
-    k = np.ones((3, 3), np.uint8)
-    b8 = blob.view(np.uint8)
-    inner = cv2.erode(b8, k, iterations=2).view(bool)
-    ring = cv2.dilate(b8, k, iterations=6).view(bool) & ~cv2.dilate(b8, k, iterations=3).view(
-        bool)
-    s_in = float(np.median(score[inner])) if inner.any() else float(score[blob].max())
-    s_out = float(np.median(score[ring & ~mask])) if (ring & ~mask).any() else 0.0
-    return s_in, s_out
+#: failures that another marker-coloured blob inside the box can cause
+_RETRYABLE = ("edges are not straight", "quadrilateral area", "the four lines",
+              "implausible corner", "edge points do not", "too few edge points",
+              "a vertex falls outside")
 
 
-def _subpixel_edges(score: np.ndarray, cols: np.ndarray, top: np.ndarray, bottom: np.ndarray,
-                    bx: int, w: int, s_in: float, s_out: float
-                    ) -> tuple[np.ndarray, np.ndarray]:
-    """Sub-pixel upper and lower edge points of the given blob columns (ROI pixels).
-
-    Over a window of 2w rows across an edge, the marker's coverage sums to the distance from
-    the window's inner end to the edge: y_top = (t + w - 0.5) - sum c_i, where
-    c_i = (s_i - s_out) / (s_in - s_out) is each pixel's coverage.
-    """
-    x = cols + bx
-    offs = np.arange(-w, w)
-    inv = 1.0 / (s_in - s_out)
-    cu = np.clip((score[top[None, :] + offs[:, None], x[None, :]] - s_out) * inv, -0.5, 1.5)
-    y_top = (top + w - 0.5) - cu.sum(0)
-    offs_d = np.arange(-w + 1, w + 1)
-    cd = np.clip((score[bottom[None, :] + offs_d[:, None], x[None, :]] - s_out) * inv, -0.5,
-                 1.5)
-    y_bot = (bottom - w + 0.5) + cd.sum(0)
-    xf = x.astype(np.float64)
-    return np.column_stack([xf, y_top]), np.column_stack([xf, y_bot])
+def _score(pixels: np.ndarray) -> np.ndarray:
+    """(R + B) / 2 - G of BGR pixels (..., 3), float32: linear in the marker's coverage."""
+    f = pixels.astype(np.float32)
+    return 0.5 * (f[..., 0] + f[..., 2]) - f[..., 1]
 
 
 def _implausible(v: np.ndarray, residual: float, blob_area: int, size: tuple[int, int],
-                 p: ExtractorParams) -> str:
-    if not np.all(np.isfinite(v)):
-        return "vertices not finite"
+                 p: ExtractorParams) -> tuple[str, float]:
+    """Why the quadrilateral v (left, top, right, bottom) is not the marker ('' if it is),
+    and its area (px²)."""
     W, H = size
-    if np.any(v < -0.5) or np.any(v > [W - 0.5, H - 0.5]):
-        return "a vertex falls outside the image (marker cut by the border)"
-    e = np.roll(v, -1, axis=0) - v
-    cross = e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0]
+    if not np.all(np.isfinite(v)):
+        return "vertices not finite", 0.0
+    if v[:, 0].min() < -0.5 or v[:, 1].min() < -0.5 or v[:, 0].max() > W - 0.5 or \
+            v[:, 1].max() > H - 0.5:
+        return "a vertex falls outside the image (marker cut by the border)", 0.0
+    e = v[[1, 2, 3, 0]] - v  # edge i: vertex i -> i + 1
+    nxt = e[[1, 2, 3, 0]]
+    cross = e[:, 0] * nxt[:, 1] - e[:, 1] * nxt[:, 0]
     if not (np.all(cross > 0) or np.all(cross < 0)):
-        return "the four lines do not make a convex quadrilateral"
-    a, b = -e, np.roll(e, 1, axis=0)  # edges meeting at each vertex
-    cosang = (a * b).sum(1) / (np.linalg.norm(a, axis=1) * np.linalg.norm(b, axis=1))
+        return "the four lines do not make a convex quadrilateral", 0.0
+    prev = e[[3, 0, 1, 2]]  # edge arriving at vertex i
+    cosang = -(prev * e).sum(1) / (np.hypot(*prev.T) * np.hypot(*e.T))
     angles = np.degrees(np.arccos(np.clip(cosang, -1, 1)))
-    if np.any(angles < p.min_angle_deg) or np.any(angles > 180 - p.min_angle_deg):
-        return f"implausible corner angles {np.round(angles).astype(int).tolist()} deg"
+    if angles.min() < p.min_angle_deg or angles.max() > 180 - p.min_angle_deg:
+        return f"implausible corner angles {np.round(angles).astype(int).tolist()} deg", 0.0
     if residual > p.max_residual_px:
-        return f"edges are not straight (residual {residual:.2f} px): partly hidden?"
-    x, y = v[:, 0], v[:, 1]
-    area = 0.5 * abs(float(x @ np.roll(y, -1) - y @ np.roll(x, -1)))
-    if abs(area - blob_area) > 0.15 * area + 2 * np.sqrt(area):
+        return f"edges are not straight (residual {residual:.2f} px): partly hidden?", 0.0
+    area = 0.5 * abs(float(v[:, 0] @ v[[1, 2, 3, 0], 1] - v[:, 1] @ v[[1, 2, 3, 0], 0]))
+    if abs(area - blob_area) > 0.15 * area + 2 * math.sqrt(area):
         return (f"quadrilateral area {area:.0f} px does not match the blob's {blob_area} px "
-                "(partly hidden?)")
-    return ""
+                "(partly hidden?)"), area
+    return "", area

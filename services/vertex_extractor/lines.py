@@ -1,81 +1,82 @@
 """Total-least-squares lines from point moments, the optimal two-line split, intersections.
 
-A line is ``(n, d)`` with unit normal n: points p on it satisfy n . p = d (pixels).
+A line is ``(nx, ny, d)`` with unit normal (nx, ny): points (x, y) on it satisfy
+nx x + ny y = d (pixels). Fits work on moment sums, so a refit after rejecting points is one
+masked sum, and the best split of an ordered point list is one cumulative sum.
 """
 
 from __future__ import annotations
 
+import math
+
+import cv2
 import numpy as np
 
-
-def fit_line(points: np.ndarray) -> tuple[np.ndarray, float]:
-    """TLS line through (N, 2) points, N >= 2."""
-    c = points.mean(0)
-    q = points - c
-    cov = q.T @ q
-    _, vecs = np.linalg.eigh(cov)
-    n = vecs[:, 0]  # smallest eigenvalue: the normal
-    return n, float(n @ c)
+Line = tuple[float, float, float]
 
 
-def distances(points: np.ndarray, line: tuple[np.ndarray, float]) -> np.ndarray:
-    """Signed orthogonal distances (px) of points to a line."""
-    n, d = line
-    return points @ n - d
-
-
-def _prefix_tls_sse(points: np.ndarray) -> np.ndarray:
-    """sse[k] = TLS residual sum of squares of points[:k] for k = 0..N (from moments)."""
+def moment_rows(points: np.ndarray) -> np.ndarray:
+    """(N, 6) rows 1, x, y, x², y², xy of (N, 2) points, centred on their first point's
+    neighbourhood by the caller for numerical range."""
     x, y = points[:, 0], points[:, 1]
-    n = np.arange(0, len(points) + 1, dtype=np.float64)
-    cx = np.concatenate([[0], np.cumsum(x)])
-    cy = np.concatenate([[0], np.cumsum(y)])
-    cxx = np.concatenate([[0], np.cumsum(x * x)])
-    cyy = np.concatenate([[0], np.cumsum(y * y)])
-    cxy = np.concatenate([[0], np.cumsum(x * y)])
-    with np.errstate(invalid="ignore", divide="ignore"):
-        sxx = cxx - cx * cx / n
-        syy = cyy - cy * cy / n
-        sxy = cxy - cx * cy / n
-        tr, det = sxx + syy, sxx * syy - sxy * sxy
-        smallest = 0.5 * (tr - np.sqrt(np.maximum(tr * tr - 4 * det, 0.0)))
-    smallest[:2] = 0.0
-    return smallest
+    return np.column_stack([np.ones_like(x), x, y, x * x, y * y, x * y])
 
 
-def best_split(points: np.ndarray, min_points: int = 3) -> int:
-    """Index k splitting ordered points into two lines points[:k], points[k:] with the least
-    total TLS residual (the optimal version of the paper's greedy Table 2 assignment)."""
-    n = len(points)
-    left = _prefix_tls_sse(points)
-    right = _prefix_tls_sse(points[::-1])[::-1]
-    ks = np.arange(min_points, n - min_points + 1)
-    total = left[ks] + right[ks]
-    return int(ks[np.argmin(total)])
+def line_from_sums(s: np.ndarray) -> tuple[Line, float]:
+    """TLS line and its residual sum of squares from moment sums (n, Σx, Σy, Σx², Σy², Σxy)."""
+    n, sx, sy, sxx, syy, sxy = (float(v) for v in s)
+    mx, my = sx / n, sy / n
+    a, c, b = sxx - sx * mx, syy - sy * my, sxy - sx * my
+    theta = 0.5 * math.atan2(2 * b, a - c)  # direction of the major axis
+    nx, ny = -math.sin(theta), math.cos(theta)
+    half = 0.5 * (a + c)
+    sse = max(half - math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0)), 0.0)
+    return (nx, ny, nx * mx + ny * my), sse
 
 
-def robust_fit(points: np.ndarray, iterations: int = 2, k_sigma: float = 3.0,
-               floor_px: float = 0.2) -> tuple[tuple[np.ndarray, float], np.ndarray]:
-    """TLS fit with iterative rejection of points beyond k robust sigmas; returns the line
-    and the inlier mask."""
-    keep = np.ones(len(points), bool)
-    line = fit_line(points)
-    for _ in range(iterations):
-        r = np.abs(distances(points, line))
-        sigma = 1.4826 * np.median(r[keep]) if keep.any() else 0.0
-        new_keep = r <= max(k_sigma * sigma, floor_px)
-        if new_keep.sum() < 2 or np.array_equal(new_keep, keep):
-            break
-        keep = new_keep
-        line = fit_line(points[keep])
-    return line, keep
+def fit_line(points: np.ndarray) -> Line:
+    """TLS line through (N, 2) points, N >= 2."""
+    return line_from_sums(moment_rows(points).sum(0))[0]
 
 
-def intersect(a: tuple[np.ndarray, float], b: tuple[np.ndarray, float]) -> np.ndarray | None:
-    """Intersection point of two lines, None if (nearly) parallel."""
-    A = np.array([a[0], b[0]])
-    det = A[0, 0] * A[1, 1] - A[0, 1] * A[1, 0]
+def distances(points: np.ndarray, line: Line) -> np.ndarray:
+    """Signed orthogonal distances (px) of points to a line."""
+    return points[:, 0] * line[0] + points[:, 1] * line[1] - line[2]
+
+
+def best_split(rows: np.ndarray, min_points: int = 3) -> int:
+    """Index k splitting ordered points (as moment rows) into two lines [:k] and [k:] with the
+    least total TLS residual: the optimal version of the paper's greedy Table 2."""
+    total = rows.sum(0)
+    pre = np.cumsum(rows, axis=0)
+    ks = np.arange(min_points, len(rows) - min_points + 1)
+    left = pre[ks - 1]
+    right = total - left
+    return int(ks[np.argmin(_sse(left) + _sse(right))])
+
+
+def _sse(s: np.ndarray) -> np.ndarray:
+    n = s[:, 0]
+    a = s[:, 3] - s[:, 1] ** 2 / n
+    c = s[:, 4] - s[:, 2] ** 2 / n
+    b = s[:, 5] - s[:, 1] * s[:, 2] / n
+    return 0.5 * (a + c) - np.sqrt(np.maximum(0.25 * (a - c) ** 2 + b * b, 0.0))
+
+
+def huber_fit(points: np.ndarray) -> tuple[Line, np.ndarray]:
+    """Robust TLS line (OpenCV's fitLine with a Huber loss) and the squared distances of the
+    inliers (within 3 robust sigmas, at least 0.25 px) for the residual figure."""
+    vx, vy, x0, y0 = cv2.fitLine(points.astype(np.float32), cv2.DIST_HUBER, 0, 1e-3, 1e-3
+                                 ).ravel().tolist()
+    line = (-vy, vx, -vy * x0 + vx * y0)
+    r2 = np.square(points[:, 0] * line[0] + points[:, 1] * line[1] - line[2])
+    med = float(np.partition(r2, len(r2) // 2)[len(r2) // 2])
+    return line, r2[r2 <= max(9 * 1.4826**2 * med, 0.0625)]
+
+
+def intersect(a: Line, b: Line) -> tuple[float, float] | None:
+    """Intersection of two lines, None if (nearly) parallel."""
+    det = a[0] * b[1] - a[1] * b[0]
     if abs(det) < 1e-9:
         return None
-    return np.array([(a[1] * A[1, 1] - b[1] * A[0, 1]) / det,
-                     (A[0, 0] * b[1] - A[1, 0] * a[1]) / det])
+    return (a[2] * b[1] - b[2] * a[1]) / det, (a[0] * b[2] - b[0] * a[2]) / det

@@ -15,8 +15,8 @@ from services.vertex_extractor.extractor import Detection, ExtractorParams, Rhom
 class ColourSettings(BaseModel):
     model_config = ConfigDict(extra="forbid")
     min_score: float = Field(default=60.0, gt=0)
-    green_ratio: float = Field(default=0.45, gt=0, le=1)
-    balance: float = Field(default=0.3, gt=0, le=1)
+    green_ratio: float = Field(default=0.35, gt=0, le=1)
+    balance: float = Field(default=0.2, gt=0, le=1)
     min_level: int = Field(default=50, ge=0, le=255)
 
 

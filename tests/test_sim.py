@@ -1,0 +1,174 @@
+import asyncio
+import math
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from schemas import Command
+from services.camera import CameraModel
+from services.config import Geometry, parse_deployment
+from services.launcher import run_deployment
+from services.sim.camera_robot import CameraRobot, CameraRobotParams
+from services.sim.humanoid import Humanoid, HumanoidParams
+from services.sim.render import RenderStyle, coverage_mask, render_view
+from services.sim.scenes import marker_pose, random_views
+from services.sim.world import CircleObstacle, PolygonObstacle, World
+from tests.conftest import run_cli
+
+
+def test_projection_matches_opencv_with_distortion_and_adds_skew():
+    dist = np.array([-0.25, 0.12, 0.001, -0.002, 0.03])
+    K = np.array([[800.0, 0.0, 320.0], [0, 790.0, 240.0], [0, 0, 1]])
+    rng = np.random.default_rng(0)
+    pts = np.column_stack([rng.uniform(-0.3, 0.3, 200), rng.uniform(-0.2, 0.2, 200),
+                           rng.uniform(0.2, 2.0, 200)])
+    ref, _ = cv2.projectPoints(pts, np.zeros(3), np.zeros(3), K, dist)
+    ref = ref.reshape(-1, 2)
+    assert np.abs(CameraModel(K, dist).project(pts) - ref).max() < 1e-6
+    # OpenCV's model has no skew; ours (Zhang's) does: u = fx x_d + skew y_d + cx
+    skewed = CameraModel(K + [[0, 2.06, 0], [0, 0, 0], [0, 0, 0]], dist).project(pts)
+    y_d = (ref[:, 1] - 240.0) / 790.0
+    assert np.abs(skewed[:, 0] - (ref[:, 0] + 2.06 * y_d)).max() < 1e-6
+
+
+def test_rendered_vertices_are_the_projected_marker_model():
+    cam, g = CameraModel.paper(), Geometry()
+    T = marker_pose(0.3, 300, 220, cam, math.radians(30), 0.2, math.radians(10))
+    r = render_view(cam, T, marker_points_m=g.marker_points())
+    rvec, _ = cv2.Rodrigues(T[:3, :3])
+    ref, _ = cv2.projectPoints(g.marker_points(), rvec, T[:3, 3], cam.K, cam.dist)
+    ref = ref.reshape(-1, 2)
+    ref[:, 0] += cam.K[0, 1] * (ref[:, 1] - cam.K[1, 2]) / cam.K[1, 1]  # OpenCV drops skew
+    assert np.abs(r.vertices_px - ref).max() < 1e-6
+    assert r.marker_visible
+
+
+@pytest.mark.parametrize("distance", [0.15, 0.3, 0.8])
+def test_rasterised_area_matches_polygon_area(distance):
+    cam, g = CameraModel.paper(), Geometry()
+    T = marker_pose(distance, 330, 250, cam, math.radians(35), 0.0, math.radians(12))
+    style = RenderStyle(noise_sigma=0, clutter=False, distractors=False, background_level=0,
+                        draw_body=False)
+    r = render_view(cam, T, marker_points_m=g.marker_points(), style=style)
+    x, y = r.vertices_px[:, 0], r.vertices_px[:, 1]
+    polygon = 0.5 * abs(x @ np.roll(y, -1) - y @ np.roll(x, -1))
+    # the image itself: green is 0 everywhere, (R + B) / 2 is 255 x coverage
+    img = r.image.astype(float)
+    measured = (img[..., 0] + img[..., 2]).sum() / (2 * 255)
+    assert abs(measured - polygon) / polygon < 0.005
+    assert abs(r.coverage_area_px - polygon) / polygon < 0.005
+
+
+def test_coverage_of_a_half_plane_is_exact_per_pixel():
+    square = np.array([[0.25, -5], [10, -5], [10, 5], [0.25, 5]])
+    cov = coverage_mask(square, 0, 0, 2, 1)
+    # pixel 0 spans [-0.5, 0.5]: the polygon from x = 0.25 covers a quarter of it
+    assert cov[0, 0] == pytest.approx(0.25, abs=1 / 32) and cov[0, 1] == 1.0
+
+
+def test_same_seed_same_frames():
+    a = [v.rendered.image for v in random_views(3, seed=5)]
+    b = [v.rendered.image for v in random_views(3, seed=5)]
+    c = [v.rendered.image for v in random_views(3, seed=6)]
+    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
+    assert not np.array_equal(a[0], c[0])
+
+
+def test_each_ir_command_moves_the_humanoid_as_configured():
+    p = HumanoidParams(forward_speed_mps=0.1, backward_speed_mps=0.05,
+                       turn_rate_radps=math.radians(30), reaction_delay_s=0.2,
+                       slip_fraction=0.0, heading_noise_radps=0.0)
+    h = Humanoid(0.0, 0.0, 0.0, p)
+    h.receive(Command.WALK_FORWARD)
+    for _ in range(100):
+        h.step(0.01)
+    assert h.x == pytest.approx(0.1 * 0.8, abs=2e-3)  # 1 s minus the 0.2 s reaction delay
+    h.receive(Command.STOP)
+    for _ in range(100):
+        h.step(0.01)
+    x_stopped = h.x
+    assert x_stopped == pytest.approx(0.08 + 0.1 * 0.2, abs=2e-3)  # walked until the delay
+    h.receive(Command.TURN_LEFT)
+    for _ in range(120):
+        h.step(0.01)
+    assert h.yaw == pytest.approx(math.radians(30), abs=6e-3) and h.x == x_stopped
+    h.receive(Command.TURN_RIGHT)
+    for _ in range(120):
+        h.step(0.01)
+    assert h.yaw == pytest.approx(math.radians(6), abs=6e-3)  # 0.2 s more left, then 1 s right
+    h.receive(Command.WALK_BACKWARD)
+    for _ in range(120):
+        h.step(0.01)
+    assert h.x == pytest.approx(x_stopped - 0.05, abs=2e-3)
+
+
+def test_humanoid_walks_on_until_stopped_and_is_blocked_by_obstacles():
+    world = World(obstacles=[CircleObstacle(x=0.5, y=0.0, radius=0.1)])
+    h = Humanoid(0.0, 0.0, 0.0, HumanoidParams(slip_fraction=0, heading_noise_radps=0))
+    h.receive(Command.WALK_FORWARD)
+    for _ in range(2000):
+        h.step(0.01, world)
+    assert 0.3 < h.x < 0.5 - 0.1 - h.params.radius_m + 0.01
+
+
+def test_camera_robot_reaches_a_goal_within_limits():
+    r = CameraRobot(0.0, 0.0, 0.0, CameraRobotParams(max_speed_mps=0.2))
+    r.goal = (0.5, 0.3, math.pi / 2)
+    speeds = []
+    for _ in range(1500):
+        r.step(0.01)
+        speeds.append(abs(r.v))
+    assert math.hypot(r.x - 0.5, r.y - 0.3) < 0.01
+    assert abs(r.yaw - math.pi / 2) < 0.02
+    assert max(speeds) <= 0.2 + 1e-9
+    assert max(np.abs(np.diff(speeds))) <= 0.5 * 0.01 + 1e-9
+
+
+def test_camera_robot_stops_short_of_an_obstacle():
+    world = World(obstacles=[PolygonObstacle(points=[(0.4, -0.5), (0.5, -0.5), (0.5, 0.5),
+                                                     (0.4, 0.5)])])
+    r = CameraRobot(0.0, 0.0, 0.0)
+    r.goal = (1.0, 0.0, 0.0)
+    for _ in range(1500):
+        r.step(0.01, world)
+    assert r.blocked and r.x < 0.4 - r.params.radius_m + 1e-3
+    assert world.clearance(r.x, r.y) >= r.params.radius_m
+
+
+def test_sim_snapshot_of_a_fresh_scene(tmp_path: Path):
+    out = run_cli("sim", "snapshot", "--fresh", "--out", str(tmp_path / "f.png"))
+    assert out.returncode == 0, out.stderr
+    img = cv2.imread(str(tmp_path / "f.png"))
+    assert img.shape == (480, 640, 3)
+    magenta = (img[..., 0] > 200) & (img[..., 2] > 200) & (img[..., 1] < 60)
+    assert magenta.sum() > 5000  # the rhombus fills about 5% of the image at 25 cm
+
+
+def test_frame_source_publishes_an_image_folder_and_survives_a_missing_device(
+        tmp_path: Path, router, make_bus):
+    folder = tmp_path / "imgs"
+    folder.mkdir()
+    for i in range(3):
+        cv2.imwrite(str(folder / f"{i}.png"), np.full((24, 32, 3), 40 * i, np.uint8))
+    dep = parse_deployment({
+        "zenoh": {"connect": [router], "multicast_scouting": False},
+        "services": {"frame_source": {"source": str(folder), "fps": 50, "loop": False}}})
+    missing = parse_deployment({
+        "zenoh": {"connect": [router], "multicast_scouting": False},
+        "services": {"frame_source": {"source": "/dev/video99", "retry_s": 0.2}}})
+    bus = make_bus("viewer")
+
+    async def go():
+        frames = bus.subscribe_frames(latest=False, queue=10)
+        await asyncio.sleep(0.3)
+        await asyncio.wait_for(run_deployment(dep), 15)  # ends by itself after 3 images
+        await asyncio.sleep(0.3)
+        got = [frames.get_nowait() for _ in range(frames.pending())]
+        assert [f.header.seq for f in got] == [0, 1, 2]
+        assert [int(f.image[0, 0, 0]) for f in got] == [0, 40, 80]
+        # a device that is not there: the service keeps retrying, never crashes
+        code = await run_deployment(missing, duration=1.5)
+        assert code == 0
+    asyncio.run(go())

@@ -1,0 +1,159 @@
+import asyncio
+import math
+
+import cv2
+import numpy as np
+import pytest
+
+from schemas import MarkerVertices
+from schemas.keys import FRAME, VERTICES
+from services.config import parse_deployment
+from services.launcher import run_deployment
+from services.sim.scenes import random_views
+from services.vertex_extractor.extractor import RhombusExtractor
+from services.vertex_extractor.lines import best_split, moment_rows
+from tests.helpers.fake_frames import publish_frame, render_marker
+
+
+@pytest.fixture(scope="module")
+def accuracy_run():
+    """500 seeded simulator views: 15-80 cm, up to 50 deg off the normal, roll up to 15 deg,
+    noise 1-4 grey levels, 30% motion-blurred, brightness 0.6-1.3, clutter and distractors."""
+    ex = RhombusExtractor()
+    errors, found, total = [], 0, 0
+    for view in random_views(500, seed=11):
+        ex.reset()
+        det = ex.extract(view.rendered.image)
+        total += 1
+        if det.found:
+            found += 1
+            errors.append(np.linalg.norm(det.vertices_px - view.rendered.vertices_px, axis=1))
+    return np.concatenate(errors), found, total
+
+
+def test_vertex_accuracy_on_500_simulated_views(accuracy_run):
+    errors, _, _ = accuracy_run
+    assert np.median(errors) <= 0.1, f"median {np.median(errors):.3f} px"
+    assert np.percentile(errors, 95) <= 0.3, f"p95 {np.percentile(errors, 95):.3f} px"
+
+
+def test_found_in_at_least_97_percent_of_views(accuracy_run):
+    _, found, total = accuracy_run
+    assert found / total >= 0.97, f"found {found}/{total}"
+
+
+def test_no_detection_without_a_marker():
+    ex = RhombusExtractor()
+    for view in random_views(20, seed=3):
+        ex.reset()
+        cam_only = render_marker(distance_m=0.3, seed=view.style.seed)  # same clutter
+        assert cam_only.marker_visible
+    # frames with clutter and pink distractors but no marker
+    from services.camera import CameraModel
+    from services.config import Geometry
+    from services.sim.render import RenderStyle, render_view
+    from services.sim.scenes import marker_pose
+    cam, g = CameraModel.paper(), Geometry()
+    T = marker_pose(0.3, 320, 240, cam)
+    for seed in range(6):
+        r = render_view(cam, T, marker_points_m=g.marker_points(), style=RenderStyle(seed=seed),
+                        draw_marker=False)
+        ex.reset()
+        det = ex.extract(r.image)
+        assert not det.found and det.reason
+
+
+def test_vertices_are_ordered_left_top_right_bottom_and_convex():
+    ex = RhombusExtractor()
+    for view in random_views(40, seed=21):
+        ex.reset()
+        det = ex.extract(view.rendered.image)
+        assert det.found, det.reason
+        v = det.vertices_px
+        assert v[0, 0] < v[2, 0] and v[1, 1] < v[3, 1]           # left < right, top above
+        assert v[0, 0] == v[:, 0].min() and v[1, 1] == v[:, 1].min()
+        e = np.roll(v, -1, axis=0) - v
+        cross = e[:, 0] * np.roll(e, -1, axis=0)[:, 1] - e[:, 1] * np.roll(e, -1, axis=0)[:, 0]
+        assert np.all(cross > 0)  # clockwise on screen (y down): convex, consistent order
+
+
+def test_tracking_uses_the_previous_frame_and_agrees_with_a_cold_search():
+    r = render_marker(0.35, 300, 220, 25.0)
+    ex = RhombusExtractor()
+    cold = ex.extract(r.image)
+    tracked = ex.extract(r.image)
+    assert cold.found and not cold.tracked and tracked.tracked
+    assert np.abs(cold.vertices_px - tracked.vertices_px).max() < 1e-6
+
+
+def test_optimal_split_finds_the_kink():
+    x = np.arange(40, dtype=float)
+    y = np.where(x < 17, 100 - 1.3 * x, 100 - 1.3 * 17 + 1.3 * (x - 17))
+    k = best_split(moment_rows(np.column_stack([x, y])), 3)
+    assert k in (17, 18)
+
+
+def _bad_frames():
+    r = render_marker(0.3)
+    img = r.image
+    yield "all black", np.zeros_like(img), "no marker"
+    yield "all marker colour", np.full_like(img, (255, 0, 255)), "marker-coloured"
+    cut = render_marker(0.2, u=40, v=240)
+    yield "cut by the border", cut.image, "border"
+    two = img.copy()
+    other = render_marker(0.3, u=140, v=240).image
+    two[:, :240] = other[:, :240]
+    yield "two markers", two, "two or more"
+    hidden = img.copy()
+    v = r.vertices_px
+    cx, cy = v.mean(0).astype(int)
+    hidden[cy - 60:cy + 5, cx - 8:cx + 70] = (40, 40, 40)
+    yield "partly hidden", hidden, ""
+    small = render_marker(2.5)
+    yield "too small", small.image, "small"
+
+
+@pytest.mark.parametrize("name,image,reason", list(_bad_frames()),
+                         ids=[b[0] for b in _bad_frames()])
+def test_bad_frames_give_found_false_with_a_reason(name, image, reason):
+    det = RhombusExtractor().extract(image)
+    assert not det.found
+    assert reason in det.reason and det.reason
+
+
+def test_service_publishes_vertices_and_survives_bad_frames(router, make_bus):
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"vertex_extractor": {}}})
+    bus = make_bus("camera")
+    r = render_marker(0.3)
+
+    async def go():
+        out = bus.subscribe(VERTICES, MarkerVertices, latest=False, queue=32)
+        service = asyncio.create_task(run_deployment(dep, duration=12))
+        await asyncio.sleep(1.5)
+        key = bus.keys.key(FRAME)
+        bus.session.put(key, b"", attachment=b'{"seq":1,"stamp_ns":1,"width":640,'
+                                             b'"height":480,"encoding":"bgr8"}')
+        bus.session.put(key, b"x" * 100, attachment=b'{"seq":2,"stamp_ns":1,"width":640,'
+                                                    b'"height":480,"encoding":"bgr8"}')
+        await asyncio.sleep(0.2)
+        publish_frame(bus, np.zeros((480, 640, 3), np.uint8), 3)
+        await asyncio.sleep(0.3)
+        publish_frame(bus, cv2.cvtColor(r.image, cv2.COLOR_BGR2GRAY), 4)
+        await asyncio.sleep(0.3)
+        publish_frame(bus, r.image, 5)
+        msgs = {}
+        while 5 not in msgs:
+            m = await out.recv(timeout=5)
+            msgs[m.seq] = m
+        service.cancel()
+        assert not msgs[3].found and "no marker" in msgs[3].reason
+        assert not msgs[4].found and "mono8" in msgs[4].reason
+        assert msgs[5].found
+        err = np.abs(np.array(msgs[5].vertices_px) - r.vertices_px).max()
+        assert err < 0.3
+        assert msgs[5].area_ratio == pytest.approx(
+            cv2.contourArea(r.vertices_px.astype(np.float32)) / (640 * 480), rel=0.01)
+        assert 1 not in msgs and 2 not in msgs  # rejected by the bus, counted, not fatal
+        assert math.isfinite(msgs[5].residual_px)
+    asyncio.run(go())
