@@ -137,7 +137,7 @@ def test_continuity_prior_keeps_the_branch_through_a_noisy_sequence():
             Geometry().T_humanoid_marker()
         v = CAM.project(PTS @ T[:3, :3].T + T[:3, 3]) + rng.normal(0, 0.5, (4, 2))
 
-        def err(R):
+        def err(R, T=T):
             return math.degrees(math.acos(np.clip((np.trace(R.T @ T[:3, :3]) - 1) / 2, -1, 1)))
         alone = estimate_marker_pose(CAM, v, PTS, up_cam=up, sigma_px=0.5)
         seq = estimate_marker_pose(CAM, v, PTS, up_cam=up, sigma_px=0.5,

@@ -28,7 +28,7 @@ def test_projection_matches_opencv_with_distortion_and_adds_skew():
     ref = ref.reshape(-1, 2)
     assert np.abs(CameraModel(K, dist).project(pts) - ref).max() < 1e-6
     # OpenCV's model has no skew; ours (Zhang's) does: u = fx x_d + skew y_d + cx
-    skewed = CameraModel(K + [[0, 2.06, 0], [0, 0, 0], [0, 0, 0]], dist).project(pts)
+    skewed = CameraModel(K + np.array([[0, 2.06, 0], [0, 0, 0], [0, 0, 0]]), dist).project(pts)
     y_d = (ref[:, 1] - 240.0) / 790.0
     assert np.abs(skewed[:, 0] - (ref[:, 0] + 2.06 * y_d)).max() < 1e-6
 

@@ -65,7 +65,7 @@ def opencv_solver(flag: int, camera: CameraModel) -> Callable[[PoseCase], np.nda
 
     def solve(case: PoseCase) -> np.ndarray:
         v, K = camera.deskew_px(case.vertices_px)  # OpenCV's model has no skew
-        ok, rvec, tvec = cv2.solvePnP(pts, v, K, camera.dist, flags=flag)
+        _, rvec, tvec = cv2.solvePnP(pts, v, K, camera.dist, flags=flag)
         R, _ = cv2.Rodrigues(rvec)
         return make_T(R, tvec.ravel())
     return solve
