@@ -104,8 +104,8 @@ class CameraPlanner:
         if self._free(goal, humanoid):
             return Plan(goal, self.holding, angle, reason)
         alt = self._nearest_free(goal, m, normal, humanoid)
-        if alt is None:
-            return Plan(goal, True, angle, "no free pose near the goal: hold")
+        if alt is None:  # boxed in: stay put and hold the humanoid
+            return Plan(camera, True, angle, "no free pose near the goal: stay and hold")
         return Plan(alt, self.holding, angle, reason + "; goal blocked, nearest free pose")
 
     def _nearest_free(self, goal: tuple[float, float, float], m: np.ndarray,
@@ -115,7 +115,7 @@ class CameraPlanner:
         limit = math.pi / 2 - p.critical_angle_rad
         base_angle = math.atan2(normal[1], normal[0])
         best: tuple[tuple[int, float], tuple[float, float, float]] | None = None
-        for radius in p.distance_m * np.array([1.0, 1.2, 1.4, 1.7, 2.0, 2.5]):
+        for radius in p.distance_m + np.arange(0.0, 0.6, 0.025):
             for a in np.radians(np.arange(-180, 180, 5)):
                 direction = np.array([math.cos(base_angle + a), math.sin(base_angle + a)])
                 cand = self._base_for(m + radius * direction, m)

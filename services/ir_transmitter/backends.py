@@ -158,8 +158,12 @@ class LircBackend:
             host, port = self.path.rsplit(":", 1)
             return socket.create_connection((host, int(port)), self.timeout_s)
         s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
-        s.settimeout(self.timeout_s)
-        s.connect(self.path)
+        try:
+            s.settimeout(self.timeout_s)
+            s.connect(self.path)
+        except OSError:
+            s.close()
+            raise
         return s
 
     def send(self, command: IrCommand) -> None:

@@ -77,8 +77,5 @@ class HeuristicController:
             self._phase = Phase.TURNING
             cmd = Command.TURN_LEFT if alpha > 0 else Command.TURN_RIGHT
             return Decision(cmd, Phase.TURNING, self.index, e, alpha)
-        if abs(alpha) > math.pi / 2:  # waypoint behind even after turning: should not happen
-            self._phase = Phase.TURNING
-            return Decision(Command.TURN_LEFT, Phase.TURNING, self.index, e, alpha)
         self._phase = Phase.WALKING
         return Decision(Command.WALK_FORWARD, Phase.WALKING, self.index, e, alpha)

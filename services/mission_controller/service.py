@@ -23,10 +23,11 @@ class Settings(ServiceSettings):
     rate_hz: float = Field(default=10.0, gt=0.0, le=200.0)
     waypoints: list[tuple[float, float]] = Field(default_factory=list,
                                                  description="initial mission, world m")
-    goal_tolerance_m: float = Field(default=0.02, gt=0.0, description="l")
+    goal_tolerance_m: float = Field(default=0.01, gt=0.0, description="l")
     turn_threshold_deg: float = Field(default=15.0, gt=0.0, lt=180.0, description="k")
     turn_release_deg: float = Field(default=5.0, gt=0.0, lt=180.0)
-    stop_lead_m: float = Field(default=0.01, ge=0.0)
+    stop_lead_m: float = Field(default=0.012, ge=0.0,
+                               description="stop this early: IR delay x walking speed")
     pose_timeout_s: float = Field(default=0.5, gt=0.0)
     keepalive_s: float = Field(default=1.0, gt=0.0)
     hold_timeout_s: float = Field(default=2.0, gt=0.0, description="a hold expires unrenewed")

@@ -23,8 +23,8 @@ import cv2
 import numpy as np
 from pydantic import Field
 
-from schemas import HumanoidPose, MissionState, Phase, SimTruth
-from schemas.keys import HUMANOID_POSE, MISSION_STATE, SIM_TRUTH
+from schemas import Hold, HumanoidPose, MissionState, Phase, SimTruth
+from schemas.keys import HUMANOID_POSE, MISSION_HOLD, MISSION_STATE, SIM_TRUTH
 from services.config import ServiceSettings
 from services.plot import line_plot
 
@@ -49,6 +49,7 @@ class Recorder:
         self.truth: list[tuple[float, float, float, float, float, float, float]] = []
         self.poses: list[tuple[float, float, float, float, float]] = []
         self.latency_ms: list[float] = []
+        self.holds = 0  # times the camera planner held the humanoid (critical angle)
 
     def _t(self, stamp_ns: int) -> float:
         if self.t0 is None:
@@ -88,6 +89,15 @@ class Recorder:
                         "floor (paper Fig. 9: z)", xlabel="time (s)", ylabel="cm",
                         hlines=[("paper goal 60 cm", 60.0)])
         cv2.imwrite(str(folder / "fig9_distance.png"), img)
+        plan = []
+        if self.truth:
+            plan += [("humanoid, true (cm)", 100 * tr[:, 1], 100 * tr[:, 2]),
+                     ("camera robot, true (cm)", 100 * tr[:, 4], 100 * tr[:, 5])]
+        if self.poses:
+            plan.append(("humanoid, estimated (cm)", 100 * p[:, 1], 100 * p[:, 2]))
+        cv2.imwrite(str(folder / "floor_plan.png"),
+                    line_plot(plan, title="Floor plan (world x right, y up)", xlabel="x (cm)",
+                              ylabel="y (cm)", size=(700, 700)))
 
 
 def summary(rec: Recorder, goal: tuple[float, float] | None) -> tuple[str, float | None]:
@@ -119,6 +129,7 @@ def summary(rec: Recorder, goal: tuple[float, float] | None) -> tuple[str, float
     if final_err is not None:
         lines.append(f"  final error          {100 * final_err:.1f} cm "
                      f"({'truth' if rec.truth else 'estimate'})")
+    lines.append(f"  critical-angle holds {rec.holds}")
     if rec.latency_ms:
         lat = np.array(rec.latency_ms)
         lines.append(f"  frame-to-pose        p50 {np.median(lat):.1f} ms, "
@@ -141,6 +152,8 @@ async def main(ctx, config: Settings) -> None:
     truth = bus.subscribe(SIM_TRUTH, SimTruth, latest=False, queue=256)
     poses = bus.subscribe(HUMANOID_POSE, HumanoidPose, latest=False, queue=256)
     states = bus.subscribe(MISSION_STATE, MissionState, latest=True)
+    holds = bus.subscribe(MISSION_HOLD, Hold, latest=False, queue=16)
+    holding = False
     rec = Recorder()
     folder = (config.run_dir / datetime.now().strftime("%Y%m%d-%H%M%S")
               if config.run_dir else None)
@@ -158,6 +171,9 @@ async def main(ctx, config: Settings) -> None:
                 n_poses += 1
             if (s := states.get_nowait()) is not None:
                 state = s
+            while (h := holds.get_nowait()) is not None:
+                rec.holds += int(h.hold and not holding)
+                holding = h.hold
             now = time.monotonic()
             if config.progress and now - last_print >= 1.0:
                 lat = rec.latency_ms[-30:]

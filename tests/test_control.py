@@ -1,0 +1,265 @@
+import asyncio
+import math
+import os
+import subprocess
+import time
+from pathlib import Path
+
+import pytest
+
+from schemas import Command, IrBackendRequest, IrBackendStatus, IrCommand, Phase
+from schemas.keys import IR_BACKEND, IR_COMMAND
+from services.camera_planner.planner import CameraPlanner, PlannerParams
+from services.config import parse_deployment
+from services.ir_transmitter.backends import LircBackend, SerialBackend
+from services.ir_transmitter.protocol import decode_timings, lircd_conf, timings_us
+from services.ir_transmitter.service import Settings as IrSettings
+from services.ir_transmitter.service import Transmitter
+from services.launcher import run_deployment
+from services.mission_controller.controller import ControlParams, HeuristicController
+from services.sim.world import CircleObstacle, World
+
+ROOT = Path(__file__).resolve().parent.parent
+K = math.radians(15)
+
+
+def ctrl(**kw) -> HeuristicController:
+    c = HeuristicController(ControlParams(turn_threshold_rad=K, turn_release_rad=math.radians(5),
+                                          goal_tolerance_m=0.02, stop_lead_m=0.01, **kw))
+    c.set_waypoints([(1.0, 0.0)])
+    return c
+
+
+@pytest.mark.parametrize("pose,age,hold,command,phase", [
+    ((0.0, 0.0, 0.0), 0.0, False, Command.WALK_FORWARD, Phase.WALKING),       # aligned, far
+    ((0.0, 0.0, math.radians(40)), 0.0, False, Command.TURN_RIGHT, Phase.TURNING),
+    ((0.0, 0.0, math.radians(-40)), 0.0, False, Command.TURN_LEFT, Phase.TURNING),
+    ((0.0, 0.0, math.radians(10)), 0.0, False, Command.WALK_FORWARD, Phase.WALKING),  # < k
+    ((0.0, 0.0, math.radians(179)), 0.0, False, Command.TURN_RIGHT, Phase.TURNING),  # behind
+    ((0.99, 0.0, 0.0), 0.0, False, Command.STOP, Phase.DONE),                 # within l
+    ((0.0, 0.0, 0.0), 0.0, True, Command.STOP, Phase.HOLD),                   # hold
+    ((0.0, 0.0, 0.0), 0.8, False, Command.STOP, Phase.WAITING_POSE),          # stale pose
+    (None, 0.0, False, Command.STOP, Phase.WAITING_POSE),                     # no pose
+])
+def test_controller_decisions(pose, age, hold, command, phase):
+    d = ctrl().decide(pose, age, hold)
+    assert (d.command, d.phase) == (command, phase)
+
+
+def test_controller_hysteresis_does_not_chatter():
+    c = ctrl()
+    assert c.decide((0, 0, math.radians(20)), 0, False).command is Command.TURN_RIGHT
+    # still 10 deg off: below k but above the release angle -> keeps turning
+    assert c.decide((0, 0, math.radians(10)), 0, False).command is Command.TURN_RIGHT
+    assert c.decide((0, 0, math.radians(4)), 0, False).command is Command.WALK_FORWARD
+    # walking, 10 deg off: below k -> keeps walking
+    assert c.decide((0.1, 0, math.radians(10)), 0, False).command is Command.WALK_FORWARD
+
+
+def test_controller_stop_lead_and_waypoint_sequence():
+    c = HeuristicController(ControlParams(goal_tolerance_m=0.02, stop_lead_m=0.01))
+    c.set_waypoints([(0.5, 0.0), (0.5, 0.5)])
+    assert c.decide((0.0, 0.0, 0.0), 0, False).command is Command.WALK_FORWARD
+    d = c.decide((0.475, 0.0, 0.0), 0, False)  # 2.5 cm: within l + lead while walking
+    assert d.waypoint_index == 1 and d.command is Command.TURN_LEFT
+    assert c.decide((0.5, 0.49, math.pi / 2), 0, False).phase is Phase.DONE
+    c.set_waypoints([])
+    assert c.decide((0, 0, 0), 0, False).phase is Phase.IDLE
+
+
+def planner(**kw) -> CameraPlanner:
+    return CameraPlanner(PlannerParams(distance_m=0.25, marker_back_offset_m=0.05, **kw))
+
+
+def test_planner_follows_at_distance_d_and_aims_at_the_marker():
+    p = planner()
+    plan = p.plan((0.6, 0.0, 0.0), (0.0, 0.0, 0.0))
+    assert not plan.hold
+    assert plan.goal == pytest.approx((0.55 - 0.25, 0.0, 0.0), abs=1e-9)
+
+
+def test_planner_past_the_critical_angle_holds_and_goes_to_PD():
+    p = planner()
+    # humanoid turned 60 deg: the view is 60 deg off the normal > 90 - 50
+    yaw = math.radians(60)
+    plan = p.plan((0.6, 0.0, yaw), (0.0, 0.0, 0.0))
+    assert plan.hold and math.degrees(plan.view_angle_rad) == pytest.approx(60, abs=5)
+    m = (0.6 - 0.05 * math.cos(yaw), -0.05 * math.sin(yaw))
+    pd = (m[0] - 0.25 * math.cos(yaw), m[1] - 0.25 * math.sin(yaw))
+    assert plan.goal[:2] == pytest.approx(pd, abs=1e-9)
+    assert plan.goal[2] == pytest.approx(yaw, abs=1e-9)  # looking along the humanoid's x
+    # still holding at 30 deg (hysteresis), released under the release angle
+    cam_at = (0.6 - 0.3 * math.cos(math.radians(30)), -0.3 * math.sin(math.radians(30)), 0.0)
+    assert p.plan((0.6, 0.0, 0.0), cam_at).hold
+    assert not p.plan((0.6, 0.0, 0.0), (0.3, 0.0, 0.0)).hold
+
+
+def test_planner_goal_in_an_obstacle_becomes_the_nearest_free_pose_that_sees():
+    world = World(obstacles=[CircleObstacle(x=0.3, y=0.0, radius=0.08)])
+    p = CameraPlanner(PlannerParams(distance_m=0.25), world)
+    plan = p.plan((0.6, 0.0, 0.0), (0.0, 0.0, 0.0))
+    assert "blocked" in plan.reason
+    gx, gy, _ = plan.goal
+    assert world.clearance(gx, gy) >= 0.08 + 0.02 - 1e-9
+    assert p.view_angle((0.6, 0.0, 0.0), plan.goal) <= math.radians(40) + 1e-9
+
+
+def test_planner_never_puts_the_camera_on_the_humanoid():
+    p = CameraPlanner(PlannerParams(distance_m=0.05))
+    plan = p.plan((0.6, 0.0, 0.0), (0.0, 0.0, 0.0))
+    assert math.hypot(plan.goal[0] - 0.6, plan.goal[1]) >= 0.08 + 0.09 + 0.02 - 1e-9
+
+
+# -- IR ---------------------------------------------------------------------------------------
+
+def test_protocol_timings_round_trip_every_code():
+    for code in range(0x80, 0x100):
+        assert decode_timings(timings_us(code)) == code
+    with pytest.raises(ValueError, match="not a Robosapien frame"):
+        decode_timings([833] * 5)
+
+
+def test_shipped_lircd_conf_is_the_generated_one():
+    assert (ROOT / "deploy/lirc/robosapien.lircd.conf").read_text() == lircd_conf()
+
+
+class Pty:
+    """A pseudo-terminal pair with a stable symlink, so it can be unplugged and replugged."""
+
+    def __init__(self, link: Path) -> None:
+        self.link = link
+        self.plug()
+
+    def plug(self) -> None:
+        import tty
+        self.master, slave = os.openpty()
+        tty.setraw(slave)
+        self.slave_fd = slave
+        if self.link.is_symlink():
+            self.link.unlink()
+        self.link.symlink_to(os.ttyname(slave))
+
+    def unplug(self) -> None:
+        self.link.unlink()
+        os.close(self.master)
+        os.close(self.slave_fd)
+
+    def read(self, n: int, timeout: float = 2.0) -> bytes:
+        import select
+        out = b""
+        end = time.monotonic() + timeout
+        while len(out) < n and time.monotonic() < end:
+            r, _, _ = select.select([self.master], [], [], 0.1)
+            if r:
+                out += os.read(self.master, 64)
+        return out
+
+
+def test_serial_backend_writes_the_codes_and_survives_unplug(tmp_path: Path):
+    pty = Pty(tmp_path / "ttyRobo")
+    tx = Transmitter(SerialBackend(str(pty.link), 115200, reopen_s=0.05),
+                     IrSettings(min_gap_s=0.0, repeat_window_s=0.0, fresh_s=1.0))
+
+    async def go():
+        for c in ("walk_forward", "turn_left", "turn_right", "walk_backward", "stop"):
+            assert await tx.send(IrCommand(command=c))
+        assert pty.read(5) == bytes([0x86, 0x88, 0x80, 0x87, 0x8E])
+        pty.unplug()
+        ok = True
+        for _ in range(3):  # the first write after the unplug fails, then the port is gone
+            ok = ok and await tx.send(IrCommand(command="walk_forward"))
+            await asyncio.sleep(0.06)
+        assert not ok and tx.failed >= 1 and "serial port" in tx.last_error
+        assert not tx.backend.connected
+        pty.plug()
+        await asyncio.sleep(0.06)
+        await tx.retry_pending()  # the latest command is still fresh: it goes out
+        assert pty.read(1) == bytes([0x86])
+        # a stale one is not resent
+        await asyncio.sleep(0.06)
+        tx._pending = IrCommand(command="turn_left", stamp_ns=time.time_ns() - 5 * 10**9)
+        await tx.retry_pending()
+        assert pty.read(1, timeout=0.3) == b""
+        assert tx.status().connected
+    asyncio.run(go())
+    tx.backend.close()
+    pty.unplug()
+
+
+def test_repeated_commands_are_coalesced_and_gapped():
+    from services.ir_transmitter.backends import LogBackend
+    log = LogBackend()
+    tx = Transmitter(log, IrSettings(min_gap_s=0.05, repeat_window_s=0.5))
+
+    async def go():
+        t0 = time.monotonic()
+        for c in ("walk_forward", "walk_forward", "walk_forward", "stop", "turn_left"):
+            await tx.send(IrCommand(command=c))
+        return time.monotonic() - t0
+    elapsed = asyncio.run(go())
+    assert [c.command.value for c in log.sent] == ["walk_forward", "stop", "turn_left"]
+    assert tx.coalesced == 2 and elapsed >= 0.1
+
+
+def test_lirc_backend_against_a_real_lircd(tmp_path: Path):
+    """Needs Debian's lirc (make test installs it)."""
+    conf, out, sock = tmp_path / "r.conf", tmp_path / "out.txt", tmp_path / "lircd.sock"
+    conf.write_text(lircd_conf())
+    proc = subprocess.Popen(["lircd", "-n", "-H", "file", "-d", str(out), "-o", str(sock),
+                             "-P", str(tmp_path / "pid"), str(conf)],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    try:
+        for _ in range(50):
+            if sock.exists():
+                break
+            time.sleep(0.1)
+        backend = LircBackend(socket=str(sock))
+        sent = ["walk_forward", "turn_left", "stop", "turn_right", "walk_backward"]
+        for c in sent:
+            backend.send(IrCommand(command=c))
+        time.sleep(0.3)
+        values = [int(line.split()[1]) for line in out.read_text().splitlines() if line.strip()]
+        frames, current = [], []
+        for v in values:
+            if v > 50000:  # the trailing gap ends a frame
+                frames.append(current)
+                current = []
+            else:
+                current.append(v)
+        assert [decode_timings(f) for f in frames] == [IrCommand(command=c).code for c in sent]
+        from services.ir_transmitter.backends import BackendError
+        with pytest.raises(BackendError, match="unreachable"):
+            LircBackend(socket=str(tmp_path / "nope")).send(IrCommand(command="stop"))
+    finally:
+        proc.terminate()
+        proc.wait(5)
+
+
+def test_hot_swap_under_a_stream_of_commands_loses_none(router, make_bus):
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"ir_transmitter": {"backend": "log",
+                                                            "min_gap_s": 0.0,
+                                                            "repeat_window_s": 0.0}}})
+    bus = make_bus("driver")
+
+    async def go():
+        task = asyncio.create_task(run_deployment(dep, duration=20))
+        await asyncio.sleep(1.5)
+        cmds = ["walk_forward", "turn_left", "turn_right", "stop"]
+        n = 40
+        for i in range(n):
+            bus.put(IR_COMMAND, IrCommand(command=cmds[i % 4]))
+            if i == 15:
+                bus.put(IR_BACKEND, IrBackendRequest(backend="sim"))
+            if i == 25:
+                bus.put(IR_BACKEND, IrBackendRequest(backend="serial",
+                                                     options={"baud": 9600}))  # no port: bad
+            await asyncio.sleep(0.01)
+        await asyncio.sleep(1.0)
+        status = await bus.get(IR_BACKEND, IrBackendStatus, timeout=2)
+        task.cancel()
+        return status
+    status = asyncio.run(go())
+    assert status and status[0].backend == "sim"
+    assert status[0].sent == 40 and status[0].failed == 0
+    assert "rejected" in status[0].last_error and "port" in status[0].last_error
