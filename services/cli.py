@@ -206,6 +206,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     from services.sim.cli import add_sim_parser
     add_sim_parser(sub)
+    from services.calibration.cli import add_calibrate_parser
+    add_calibrate_parser(sub)
     return parser
 
 
