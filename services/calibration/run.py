@@ -97,8 +97,8 @@ def residual_plot(path: Path, image_path: Path, points: np.ndarray, residuals: n
     """The image with detected points (green) and residual vectors x ``scale`` (red)."""
     img = cv2.cvtColor(read_image(image_path), cv2.COLOR_GRAY2BGR)
     for p, r in zip(points, residuals, strict=True):
-        a = tuple(int(round(v)) for v in p)
-        b = tuple(int(round(v)) for v in p + scale * r)
+        a = tuple(np.round(p).astype(int).tolist())
+        b = tuple(np.round(p + scale * r).astype(int).tolist())
         cv2.circle(img, a, 3, (0, 200, 0), 1, cv2.LINE_AA)
         cv2.line(img, a, b, (0, 0, 255), 1, cv2.LINE_AA)
     rms = float(np.sqrt(np.mean(np.sum(residuals ** 2, axis=1))))
