@@ -28,11 +28,12 @@ def _run(build: Path, codes: list[int]) -> tuple[list, list[int]]:
     res = subprocess.run([str(build / "sim_harness"), str(build / "robosapien_ir.elf"),
                           *map(str, codes)], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
-    freq = next(int(l.split()[1]) for l in res.stdout.splitlines() if l.startswith("freq"))
-    pins = [l.split() for l in res.stdout.splitlines() if l.startswith("pin")]
+    lines = res.stdout.splitlines()
+    freq = next(int(ln.split()[1]) for ln in lines if ln.startswith("freq"))
+    pins = [ln.split() for ln in lines if ln.startswith("pin")]
     t = np.array([int(p[1]) for p in pins]) / freq
     level = np.array([int(p[2]) & 1 for p in pins])
-    echoed = [int(l.split()[2]) for l in res.stdout.splitlines() if l.startswith("uart")]
+    echoed = [int(ln.split()[2]) for ln in lines if ln.startswith("uart")]
     return decode_trace(t, level), echoed
 
 
