@@ -139,6 +139,11 @@ def cmd_ir(args: argparse.Namespace) -> int:
     return cmd_publish(args, IR_BACKEND, IrBackendRequest(backend=args.backend, options=options))
 
 
+def cmd_experiments(args: argparse.Namespace) -> int:
+    from services.experiments import run
+    return run(Path(args.out), quick=args.quick)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="shepherd", description=__doc__)
     parser.add_argument("--version", action="version", version=f"shepherd {_version()}")
@@ -203,6 +208,11 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--option", "-o", action="append", default=[], metavar="KEY=VALUE")
     _zenoh_args(b)
     p.set_defaults(func=cmd_ir)
+
+    p = sub.add_parser("experiments", help="the paper's experiments in simulation: report")
+    p.add_argument("--out", default="experiments", help="folder for report.md and plots")
+    p.add_argument("--quick", action="store_true", help="fewer trials")
+    p.set_defaults(func=cmd_experiments)
 
     from services.sim.cli import add_sim_parser
     add_sim_parser(sub)
