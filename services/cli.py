@@ -139,6 +139,24 @@ def cmd_ir(args: argparse.Namespace) -> int:
     return cmd_publish(args, IR_BACKEND, IrBackendRequest(backend=args.backend, options=options))
 
 
+def cmd_record(args: argparse.Namespace) -> int:
+    from services.recorder import record
+    try:
+        return asyncio.run(record(_session_settings(args), args.namespace, Path(args.out),
+                                  args.key_exprs, args.duration, args.jpeg))
+    except KeyboardInterrupt:
+        return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from services.recorder import replay
+    if not Path(args.inp).is_file():
+        print(f"shepherd: no such recording: {args.inp}", file=sys.stderr)
+        return 2
+    return asyncio.run(replay(_session_settings(args), Path(args.inp), args.speed,
+                              args.only or None))
+
+
 def cmd_experiments(args: argparse.Namespace) -> int:
     from services.experiments import run
     return run(Path(args.out), quick=args.quick)
@@ -208,6 +226,22 @@ def build_parser() -> argparse.ArgumentParser:
     b.add_argument("--option", "-o", action="append", default=[], metavar="KEY=VALUE")
     _zenoh_args(b)
     p.set_defaults(func=cmd_ir)
+
+    p = sub.add_parser("record", help="record bus traffic to an MCAP file")
+    p.add_argument("out", help="OUT.mcap")
+    p.add_argument("key_exprs", nargs="*", help="default: <namespace>/**")
+    _zenoh_args(p)
+    p.add_argument("--duration", type=float, help="stop after S seconds (default: Ctrl-C)")
+    p.add_argument("--jpeg", type=int, metavar="Q", help="store frames as JPEG of quality Q")
+    p.set_defaults(func=cmd_record)
+
+    p = sub.add_parser("replay", help="publish an MCAP recording back at its recorded pace")
+    p.add_argument("inp", metavar="IN.mcap")
+    _zenoh_args(p)
+    p.add_argument("--speed", type=float, default=1.0)
+    p.add_argument("--only", action="append", default=[], metavar="KEY_EXPR",
+                   help="replay only matching keys (repeatable)")
+    p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("experiments", help="the paper's experiments in simulation: report")
     p.add_argument("--out", default="experiments", help="folder for report.md and plots")
