@@ -283,6 +283,19 @@ class Bus:
         sub._undeclare = self._declare(key_expr or self.keys.key(suffix), on_sample)
         return sub
 
+    def subscribe_stamped(self, suffix: str, model: type[M], *, queue: int = 256
+                          ) -> Subscription[tuple[int, M]]:
+        """Bounded queue of (receive time Unix ns, message): for latency measurements."""
+        sub: Subscription[tuple[int, M]] = Subscription(asyncio.get_running_loop(), queue)
+
+        def on_sample(sample: zenoh.Sample) -> None:
+            msg = self.decode(sample, model)
+            if msg is not None:
+                sub.push((time.time_ns(), msg))
+
+        sub._undeclare = self._declare(self.keys.key(suffix), on_sample)
+        return sub
+
     def decode_frame(self, sample: zenoh.Sample) -> Frame | None:
         """Decode a ``camera/frame`` sample; count and return None when invalid."""
         key = str(sample.key_expr)

@@ -150,7 +150,7 @@ async def main(ctx, config: Settings) -> None:
     if goal is None and mc is not None and mc.waypoints:
         goal = tuple(mc.waypoints[-1])
     truth = bus.subscribe(SIM_TRUTH, SimTruth, latest=False, queue=256)
-    poses = bus.subscribe(HUMANOID_POSE, HumanoidPose, latest=False, queue=256)
+    poses = bus.subscribe_stamped(HUMANOID_POSE, HumanoidPose, queue=256)
     states = bus.subscribe(MISSION_STATE, MissionState, latest=True)
     holds = bus.subscribe(MISSION_HOLD, Hold, latest=False, queue=16)
     holding = False
@@ -166,8 +166,9 @@ async def main(ctx, config: Settings) -> None:
         while True:
             while (m := truth.get_nowait()) is not None:
                 rec.add_truth(m)
-            while (p := poses.get_nowait()) is not None:
-                rec.add_pose(p, time.time_ns())
+            while (item := poses.get_nowait()) is not None:
+                received_ns, p = item
+                rec.add_pose(p, received_ns)
                 n_poses += 1
             if (s := states.get_nowait()) is not None:
                 state = s

@@ -225,7 +225,10 @@ def refine(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray,
             up, w = prior
             n = R[:, 2]
             r = np.append(r, w * float(n @ up))
-            J = np.vstack([J, np.concatenate([w * np.cross(n, up), np.zeros(3)])])
+            # d(n . up)/dw = n x up for a left increment
+            J = np.vstack([J, [w * (n[1] * up[2] - n[2] * up[1]),
+                               w * (n[2] * up[0] - n[0] * up[2]),
+                               w * (n[0] * up[1] - n[1] * up[0]), 0.0, 0.0, 0.0]])
         JTJ = J.T @ J
         try:
             delta = -np.linalg.solve(JTJ + 1e-12 * np.eye(6), J.T @ r)
@@ -235,8 +238,9 @@ def refine(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray,
         new_cost = cost_of(R_new, t_new)
         if new_cost > cost:
             break
+        converged = cost - new_cost <= 1e-9 * cost
         R, t, cost = R_new, t_new, new_cost
-        if float(np.linalg.norm(delta)) < 1e-12:
+        if converged or float(np.linalg.norm(delta)) < 1e-12:
             break
     _, J = residuals_and_jacobian(R, t, model, q)
     return R, t, J, cost
