@@ -23,7 +23,7 @@ class ControlParams:
     turn_release_rad: float = math.radians(5.0)      # hysteresis: stop turning below this
     goal_tolerance_m: float = 0.02                   # l
     stop_lead_m: float = 0.01                        # stop this much early (reaction delay)
-    pose_timeout_s: float = 0.5
+    pose_timeout_s: float = 0.3
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ class Settings(ServiceSettings):
     turn_release_deg: float = Field(default=5.0, gt=0.0, lt=180.0)
     stop_lead_m: float = Field(default=0.012, ge=0.0,
                                description="stop this early: IR delay x walking speed")
-    pose_timeout_s: float = Field(default=0.5, gt=0.0)
+    pose_timeout_s: float = Field(default=0.3, gt=0.0, description="stop when the pose is older")
     keepalive_s: float = Field(default=1.0, gt=0.0)
     hold_timeout_s: float = Field(default=2.0, gt=0.0, description="a hold expires unrenewed")
     exit_when_done: bool = Field(default=False, description="stop the deployment when done")
