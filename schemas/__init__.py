@@ -21,6 +21,7 @@ from schemas.messages import (
     MissionState,
     Phase,
     Pose2D,
+    ServiceStats,
     SimTruth,
     now_ns,
 )
@@ -28,12 +29,13 @@ from schemas.messages import (
 ALL_MODELS: tuple[type[Message], ...] = (
     FrameHeader, CameraIntrinsics, CameraPose, CameraGoal, MarkerVertices, MarkerInCamera,
     HumanoidPose, MissionGoal, MissionState, Hold, IrCommand, IrBackendRequest,
-    IrBackendStatus, Pose2D, SimTruth,
+    IrBackendStatus, Pose2D, ServiceStats, SimTruth,
 )
 
 __all__ = [
     "ALL_MODELS", "ROBOSAPIEN_CODES", "TOPICS", "CameraGoal", "CameraIntrinsics", "CameraPose",
     "Command", "FrameEncoding", "FrameHeader", "Hold", "HumanoidPose", "IrBackendRequest",
     "IrBackendStatus", "IrCommand", "Keys", "MarkerInCamera", "MarkerVertices", "Message",
-    "MissionGoal", "MissionState", "Phase", "Pose2D", "SimTruth", "model_for", "now_ns",
+    "MissionGoal", "MissionState", "Phase", "Pose2D", "ServiceStats", "SimTruth", "model_for",
+    "now_ns",
 ]

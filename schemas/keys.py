@@ -36,6 +36,7 @@ IR_BACKEND = "ir/backend"
 SIM_IR = "sim/ir"
 SIM_TRUTH = "sim/truth"
 ALIVE = "alive"
+STATS = "stats"  # queryable stats/<service>: ServiceStats
 
 #: suffix -> model of its payload; ``None`` marks raw frame bytes with a FrameHeader attachment.
 TOPICS: dict[str, type[Message] | None] = {
@@ -72,6 +73,9 @@ class Keys:
 
     def alive(self, service: str) -> str:
         return f"{self.namespace}/{ALIVE}/{service}"
+
+    def stats(self, service: str) -> str:
+        return f"{self.namespace}/{STATS}/{service}"
 
     def suffix(self, key: str) -> str:
         """The topic suffix of a full key (the inverse of :meth:`key`)."""

@@ -235,6 +235,16 @@ class IrBackendStatus(Message):
     last_error: str = ""
 
 
+class ServiceStats(Message):
+    """Reply to a query on ``stats/<service>``: what the service rejected, and restarts."""
+
+    stamp_ns: int = Field(default_factory=now_ns, ge=0)
+    service: str
+    rejected: dict[str, dict[str, int]] = Field(default_factory=dict,
+                                                description="key -> reason -> count")
+    restarts: int = Field(default=0, ge=0)
+
+
 class Pose2D(Message):
     x: FiniteFloat
     y: FiniteFloat

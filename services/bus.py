@@ -106,6 +106,13 @@ class Rejections:
             self._log.warning("rejected a payload on %s: %s (further rejections counted)", key,
                               reason)
 
+    def by_key(self) -> dict[str, dict[str, int]]:
+        with self._lock:
+            out: dict[str, dict[str, int]] = {}
+            for (k, reason), n in self.counts.items():
+                out.setdefault(k, {})[reason] = n
+            return out
+
     def total(self, key: str | None = None) -> int:
         with self._lock:
             return sum(n for (k, _), n in self.counts.items() if key is None or k == key)
@@ -179,6 +186,23 @@ class Subscription(Generic[T]):
         self._undeclare()
 
 
+class _FrameSubscription(Subscription[Any]):
+    """Holds (header, payload reference, receive time, key); decodes when taken."""
+
+    def __init__(self, loop: asyncio.AbstractEventLoop, maxlen: int, bus: Bus) -> None:
+        super().__init__(loop, maxlen)
+        self._bus = bus
+
+    def get_nowait(self) -> Frame | None:  # type: ignore[override]
+        while (item := super().get_nowait()) is not None:
+            header, payload, received_ns, key = item
+            try:
+                return Frame(header, decode_image(header, payload.to_bytes()), received_ns)
+            except ValueError as err:
+                self._bus.rejections.add(key, str(err))  # type: ignore[union-attr]
+        return None
+
+
 @dataclass
 class Bus:
     """One service's typed view of a shared Zenoh session.
@@ -192,13 +216,14 @@ class Bus:
     session: zenoh.Session
     keys: Keys = field(default_factory=Keys)
     service: str = "client"
-    rejections: Rejections = field(init=False)
+    rejections: Rejections | None = None  # shared across restarts when the launcher gives one
     _closers: list[Callable[[], None]] = field(default_factory=list, init=False)
     _publishers: dict[str, Any] = field(default_factory=dict, init=False)
 
     def __post_init__(self) -> None:
         self.log = logging.getLogger(f"shepherd.{self.service}")
-        self.rejections = Rejections(self.log)
+        if self.rejections is None:
+            self.rejections = Rejections(self.log)
 
     # -- lifecycle -------------------------------------------------------------------------
 
@@ -296,6 +321,39 @@ class Bus:
         sub._undeclare = self._declare(self.keys.key(suffix), on_sample)
         return sub
 
+    def frame_header(self, sample: zenoh.Sample) -> FrameHeader | None:
+        """Validate a ``camera/frame`` sample's header and payload size without copying the
+        pixels; count and return None when invalid."""
+        key = str(sample.key_expr)
+        if sample.attachment is None:
+            self.rejections.add(key, "frame without a header attachment")
+            return None
+        try:
+            header = FrameHeader.model_validate_json(sample.attachment.to_bytes())
+        except ValidationError as err:
+            first = err.errors()[0]
+            where = ".".join(str(p) for p in first["loc"]) or "attachment"
+            self.rejections.add(key, f"invalid frame header: {where}: {first['msg']}")
+            return None
+        except Exception as err:
+            self.rejections.add(key, f"undecodable frame header: {err}")
+            return None
+        size = len(sample.payload)
+        expected = header.expected_size()
+        if size == 0:
+            self.rejections.add(key, "empty frame payload")
+            return None
+        if expected is not None and size != expected:
+            self.rejections.add(key, f"frame payload is {size} bytes, header {header.width}x"
+                                f"{header.height} {header.encoding.value} needs {expected}")
+            return None
+        if expected is None:  # JPEG: small enough to check its start and end markers now
+            data = sample.payload.to_bytes()
+            if data[:2] != b"\xff\xd8" or data[-2:] != b"\xff\xd9":
+                self.rejections.add(key, "frame payload is not a decodable JPEG")
+                return None
+        return header
+
     def decode_frame(self, sample: zenoh.Sample) -> Frame | None:
         """Decode a ``camera/frame`` sample; count and return None when invalid."""
         key = str(sample.key_expr)
@@ -321,16 +379,17 @@ class Bus:
         return Frame(header, image, time.time_ns())
 
     def subscribe_frames(self, *, latest: bool = True, queue: int = 2) -> Subscription[Frame]:
-        sub: Subscription[Frame] = Subscription(asyncio.get_running_loop(),
-                                                1 if latest else queue)
+        """Frames, validated on receipt (header and size) but copied and decoded only when
+        taken: under a flood the frames the latest-value policy drops cost no copy."""
+        sub = _FrameSubscription(asyncio.get_running_loop(), 1 if latest else queue, self)
 
         def on_sample(sample: zenoh.Sample) -> None:
-            frame = self.decode_frame(sample)
-            if frame is not None:
-                sub.push(frame)
+            header = self.frame_header(sample)
+            if header is not None:
+                sub.push((header, sample.payload, time.time_ns(), str(sample.key_expr)))
 
         sub._undeclare = self._declare(self.keys.key(FRAME), on_sample)
-        return sub
+        return sub  # type: ignore[return-value]
 
     def subscribe_raw(self, key_expr: str, *, queue: int = 256) -> Subscription[zenoh.Sample]:
         """Untyped samples on any key expression (for ``echo`` and recording)."""

@@ -157,6 +157,19 @@ def cmd_replay(args: argparse.Namespace) -> int:
                               args.only or None))
 
 
+def cmd_soak(args: argparse.Namespace) -> int:
+    from services.config import ConfigError, load_deployment
+    from services.soak import soak
+    try:
+        dep = load_deployment(Path(args.file) if args.file else DEFAULT_DEPLOYMENT)
+    except ConfigError as err:
+        print(f"shepherd: {err}", file=sys.stderr)
+        return 2
+    if args.listen:
+        dep.zenoh.listen = args.listen
+    return asyncio.run(soak(dep, args.minutes, args.sample_s))
+
+
 def cmd_experiments(args: argparse.Namespace) -> int:
     from services.experiments import run
     return run(Path(args.out), quick=args.quick)
@@ -242,6 +255,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--only", action="append", default=[], metavar="KEY_EXPR",
                    help="replay only matching keys (repeatable)")
     p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("soak", help="run the simulated mission back and forth; watch memory")
+    p.add_argument("file", nargs="?", help="deployment (default deploy/sim.toml)")
+    p.add_argument("--minutes", type=float, default=30.0)
+    p.add_argument("--sample-s", type=float, default=60.0, help="memory sampling period")
+    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP")
+    p.set_defaults(func=cmd_soak)
 
     p = sub.add_parser("experiments", help="the paper's experiments in simulation: report")
     p.add_argument("--out", default="experiments", help="folder for report.md and plots")

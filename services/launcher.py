@@ -18,8 +18,9 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from schemas import Keys
-from services.bus import Bus, open_session
+from schemas import Keys, ServiceStats
+from schemas.keys import STATS
+from services.bus import Bus, Rejections, open_session
 from services.config import Deployment
 from services.registry import load_service
 
@@ -57,11 +58,15 @@ class _Run:
 async def _supervise_task(name: str, dep: Deployment, session: object, run: _Run) -> None:
     module = load_service(name)
     settings = dep.settings_for(name)
+    keys = Keys(dep.namespace)
+    rejections = Rejections(logging.getLogger(f"shepherd.{name}"))
     attempt = 0
     while not run.stop.is_set():
-        bus = Bus(session, Keys(dep.namespace), name)  # type: ignore[arg-type]
+        bus = Bus(session, keys, name, rejections)  # type: ignore[arg-type]
         try:
             bus.declare_alive()
+            bus.declare_queryable(f"{STATS}/{name}", lambda: ServiceStats(
+                service=name, rejected=rejections.by_key(), restarts=run.restarts.get(name, 0)))
             await module.main(ServiceContext(bus, dep, name, run.request_exit), settings)
             log.info("service %s finished", name)
             return
@@ -125,8 +130,8 @@ async def run_deployment(dep: Deployment, *, only: list[str] | None = None,
             raise KeyError(f"service {name!r} is not in {dep.path}")
     run = _Run()
     loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError, RuntimeError):
+    for sig in (signal.SIGINT, signal.SIGTERM):  # only possible in the main thread
+        with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
             loop.add_signal_handler(sig, run.stop.set)
     in_process = [n for n in names if child or not (processes or dep.settings_for(n).process)]
     as_process = [n for n in names if n not in in_process]
@@ -153,6 +158,6 @@ async def run_deployment(dep: Deployment, *, only: list[str] | None = None,
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(asyncio.shield(all_done), STOP_GRACE_S + 1.0)
         for sig in (signal.SIGINT, signal.SIGTERM):
-            with contextlib.suppress(NotImplementedError, RuntimeError):
+            with contextlib.suppress(NotImplementedError, RuntimeError, ValueError):
                 loop.remove_signal_handler(sig)
     return run.exit_code

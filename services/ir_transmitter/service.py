@@ -97,11 +97,13 @@ async def main(ctx, config: Settings) -> None:
     commands = bus.subscribe(IR_COMMAND, IrCommand, latest=False, queue=64)
     requests = bus.subscribe(IR_BACKEND, IrBackendRequest, latest=False, queue=8)
     bus.declare_queryable(IR_BACKEND, tx.status)
+    pending: set[asyncio.Future] = set()
     try:
         while True:
             cmd_task = asyncio.ensure_future(commands.recv())
             req_task = asyncio.ensure_future(requests.recv())
-            done, _ = await asyncio.wait({cmd_task, req_task}, timeout=0.5,
+            pending = {cmd_task, req_task}
+            done, _ = await asyncio.wait(pending, timeout=0.5,
                                          return_when=asyncio.FIRST_COMPLETED)
             for task in (cmd_task, req_task):
                 if task not in done:
@@ -124,6 +126,8 @@ async def main(ctx, config: Settings) -> None:
             else:
                 await tx.retry_pending()
     finally:
+        for task in pending:
+            task.cancel()
         try:
             await asyncio.wait_for(asyncio.to_thread(tx.backend.send,
                                                      IrCommand(command=Command.STOP)), 1.0)

@@ -32,6 +32,8 @@ class Settings(ServiceSettings):
     keepalive_s: float = Field(default=1.0, gt=0.0)
     hold_timeout_s: float = Field(default=2.0, gt=0.0, description="a hold expires unrenewed")
     exit_when_done: bool = Field(default=False, description="stop the deployment when done")
+    loop: bool = Field(default=False, description="when done, run the waypoints again in "
+                       "reverse order (soak tests)")
 
 
 def params_from(config: Settings) -> ControlParams:
@@ -52,6 +54,7 @@ async def main(ctx, config: Settings) -> None:
     pose: tuple[float, float, float] | None = None
     pose_mono = 0.0
     hold, hold_mono = False, 0.0
+    origin: tuple[float, float] | None = None  # where the current leg started (loop)
     period = 1.0 / config.rate_hz
 
     def send(cmd: Command) -> None:
@@ -65,11 +68,14 @@ async def main(ctx, config: Settings) -> None:
         while True:
             while (g := goals.get_nowait()) is not None:
                 ctrl.set_waypoints([tuple(w) for w in g.waypoints])
+                origin = (pose[0], pose[1]) if pose is not None else None
                 ctrl.params = ControlParams(**{**ctrl.params.__dict__,
                                                "goal_tolerance_m": g.tolerance_m})
                 log.info("new mission: %d waypoints", len(g.waypoints))
             if (p := poses.get_nowait()) is not None and p.x is not None:
                 pose = (p.x, p.y, p.yaw)  # type: ignore[assignment]
+                if origin is None:
+                    origin = (p.x, p.y)  # type: ignore[assignment]
                 pose_mono = time.monotonic() - max(0.0, (time.time_ns() - p.stamp_ns) / 1e9)
             if (h := holds.get_nowait()) is not None:
                 hold, hold_mono = h.hold, time.monotonic()
@@ -88,6 +94,11 @@ async def main(ctx, config: Settings) -> None:
                 log.info("mission complete (e = %.1f cm)", 100 * (d.distance_m or 0.0))
                 if config.exit_when_done:
                     ctx.request_exit(0)
+                if config.loop and origin is not None:
+                    # back the way it came, to where this leg started
+                    back = [*ctrl.waypoints[-2::-1], origin]
+                    origin = ctrl.waypoints[-1]
+                    ctrl.set_waypoints(back)
             await asyncio.sleep(period)
     finally:
         bus.put(IR_COMMAND, IrCommand(command=Command.STOP))

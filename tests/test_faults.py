@@ -1,0 +1,128 @@
+"""Faults: a router restarted under traffic, a pose stream that stops, a service that raises.
+Where control is lost, `stop` must reach the humanoid within 0.5 s."""
+
+import asyncio
+import math
+import signal
+import time
+
+import zenoh
+
+from schemas import HumanoidPose, IrCommand, MarkerInCamera
+from schemas.keys import HUMANOID_POSE, SIM_IR
+from services.bus import ZenohSettings, zenoh_config
+from services.config import parse_deployment
+from services.launcher import run_deployment
+from services.mission_controller import controller as controller_module
+from tests.conftest import endpoint, spawn_cli
+
+
+def test_router_restart_under_traffic_sessions_reconnect():
+    ep = endpoint()
+    router = spawn_cli("router", "--listen", ep)
+    settings = ZenohSettings(mode="client", connect=[ep], multicast_scouting=False)
+    try:
+        for _ in range(50):
+            try:
+                a = zenoh.open(zenoh_config(settings))
+                break
+            except zenoh.ZError:
+                time.sleep(0.2)
+        b = zenoh.open(zenoh_config(settings))
+        got: list[float] = []
+        sub = b.declare_subscriber("shepherd/t", lambda s: got.append(time.monotonic()))
+        time.sleep(0.5)
+        a.put("shepherd/t", b"1")
+        time.sleep(0.3)
+        assert len(got) == 1
+        router.send_signal(signal.SIGKILL)
+        router.communicate(timeout=5)  # reaps it and closes its pipes
+        for _ in range(10):  # traffic while the router is down is lost, never queued forever
+            a.put("shepherd/t", b"1")
+            time.sleep(0.05)
+        assert len(got) == 1
+        router = spawn_cli("router", "--listen", ep)
+        t0 = time.monotonic()
+        while time.monotonic() - t0 < 20 and len(got) == 1:
+            a.put("shepherd/t", b"1")
+            time.sleep(0.02)
+        resumed = time.monotonic() - t0
+        assert len(got) > 1, "traffic did not resume"
+        print(f"\nrouter restart: traffic resumed {resumed:.2f} s after the new router started")
+        sub.undeclare()
+        a.close()
+        b.close()
+    finally:
+        router.kill()
+        router.communicate()
+
+
+def _pose(x: float) -> HumanoidPose:
+    return HumanoidPose(seq=1, stamp_ns=time.time_ns(), x=x, y=0.0, yaw=0.0,
+                        marker_in_camera=MarkerInCamera(position=(0, 0, 0.3),
+                                                        quaternion=(0, 0, 0, 1)),
+                        reprojection_px=0.1)
+
+
+def _control_deployment(router: str):
+    return parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                             "services": {"mission_controller": {"waypoints": [[2.0, 0.0]]},
+                                          "ir_transmitter": {"backend": "sim",
+                                                             "repeat_window_s": 0.0,
+                                                             "min_gap_s": 0.0}}})
+
+
+def test_a_pose_stream_that_stops_ends_in_stop_within_half_a_second(router, make_bus):
+    bus = make_bus("camera")
+
+    async def go() -> float:
+        heard = bus.subscribe_stamped(SIM_IR, IrCommand, queue=256)
+        task = asyncio.create_task(run_deployment(_control_deployment(router), duration=20))
+        await asyncio.sleep(2.0)
+        for _ in range(45):  # 1.5 s of poses at 30 Hz, far from the goal: walk
+            bus.put(HUMANOID_POSE, _pose(0.3))
+            await asyncio.sleep(1 / 30)
+        last = time.time_ns()
+        await asyncio.sleep(1.0)
+        task.cancel()
+        cmds = [(t, m.command.value) for t, m in iter(heard.get_nowait, None)]
+        walking = [t for t, c in cmds if c == "walk_forward" and t < last]
+        stops = [t for t, c in cmds if c == "stop" and t > last]
+        assert walking and stops, cmds
+        return (stops[0] - last) / 1e9
+    delay = asyncio.run(go())
+    print(f"\npose stream stopped: stop reached the humanoid after {1000 * delay:.0f} ms")
+    assert delay < 0.5
+
+
+def test_an_unhandled_exception_in_the_controller_sends_stop(router, make_bus, monkeypatch):
+    original = controller_module.HeuristicController.decide
+    calls = [0]
+
+    def flaky(self, pose, age, hold):
+        calls[0] += 1
+        if calls[0] == 15:
+            raise RuntimeError("injected fault")
+        return original(self, pose, age, hold)
+
+    monkeypatch.setattr(controller_module.HeuristicController, "decide", flaky)
+    bus = make_bus("camera")
+
+    async def go() -> list[tuple[int, str]]:
+        heard = bus.subscribe_stamped(SIM_IR, IrCommand, queue=256)
+        task = asyncio.create_task(run_deployment(_control_deployment(router), duration=20))
+        await asyncio.sleep(0.5)
+        t_end = time.monotonic() + 4.0
+        while time.monotonic() < t_end:
+            bus.put(HUMANOID_POSE, _pose(0.3))
+            await asyncio.sleep(1 / 30)
+        task.cancel()
+        return [(t, m.command.value) for t, m in iter(heard.get_nowait, None)]
+    cmds = asyncio.run(go())
+    values = [c for _, c in cmds]
+    first_walk = values.index("walk_forward")
+    # walking, then the crash sends stop, then the restarted controller walks again
+    assert "stop" in values[first_walk:]
+    after = values[first_walk:][values[first_walk:].index("stop"):]
+    assert "walk_forward" in after
+    assert not math.isnan(len(cmds))

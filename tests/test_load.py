@@ -1,0 +1,83 @@
+"""Load: 640x480 frames published flat out for a minute (SHEPHERD_LOAD_S to change) into the
+vertex extractor and pose estimator in their own process: memory stays flat, latency stays
+bounded, and the newest frame is the one processed."""
+
+import asyncio
+import os
+import time
+from pathlib import Path
+
+import numpy as np
+
+from schemas import HumanoidPose
+from schemas.keys import HUMANOID_POSE
+from services.bus import encode_frame
+from tests.conftest import ROOT, spawn_cli
+from tests.helpers.fake_frames import render_marker
+
+LOAD_S = float(os.environ.get("SHEPHERD_LOAD_S", "60"))
+
+
+def _rss_kb(pid: int) -> int:
+    for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+        if line.startswith("VmRSS:"):
+            return int(line.split()[1])
+    raise RuntimeError("no VmRSS")
+
+
+def test_frames_flat_out_for_a_minute(tmp_path: Path, router, make_bus):
+    dep = tmp_path / "vision.toml"
+    dep.write_text(f'[zenoh]\nconnect = ["{router}"]\nmulticast_scouting = false\n'
+                   "[services.vertex_extractor]\n[services.pose_estimator]\n"
+                   f'intrinsics = "{ROOT / "deploy/paper-camera.toml"}"\n'
+                   "static_camera_pose = [0.0, 0.0, 0.0]\n")
+    proc = spawn_cli("--log-level", "WARNING", "run", str(dep))
+    frames = [render_marker(0.3 + 0.01 * k, seed=k).image for k in range(8)]
+    bus = make_bus("flood")
+
+    async def go() -> tuple[list[tuple[float, int]], list[tuple[float, float]], int, int]:
+        poses = bus.subscribe_stamped(HUMANOID_POSE, HumanoidPose, queue=100000)
+        await asyncio.sleep(3.0)
+        rss: list[tuple[float, int]] = []
+        t0 = time.monotonic()
+        seq = 0
+        sent_ns: dict[int, int] = {}
+        next_sample = 0.0
+        while (elapsed := time.monotonic() - t0) < LOAD_S:
+            stamp = time.time_ns()
+            header, payload = encode_frame(frames[seq % len(frames)], seq, stamp)
+            bus.put_frame(header, payload)
+            sent_ns[seq] = stamp
+            seq += 1
+            if elapsed >= next_sample:
+                rss.append((elapsed, _rss_kb(proc.pid)))
+                next_sample += LOAD_S / 12
+            await asyncio.sleep(0)
+        last_sent = seq - 1
+        await asyncio.sleep(1.0)
+        lat: list[tuple[float, float]] = []
+        last_pose = -1
+        while (item := poses.get_nowait()) is not None:
+            recv, p = item
+            lat.append(((sent_ns[p.seq] - sent_ns[0]) / 1e9, (recv - sent_ns[p.seq]) / 1e6))
+            last_pose = max(last_pose, p.seq)
+        return rss, lat, last_sent, last_pose
+
+    try:
+        rss, lat, last_sent, last_pose = asyncio.run(go())
+    finally:
+        proc.terminate()
+        proc.communicate(timeout=10)
+    t = np.array([a for a, _ in lat])
+    ms = np.array([b for _, b in lat])
+    early, late = ms[t < LOAD_S / 4], ms[t > 3 * LOAD_S / 4]
+    growth = (rss[-1][1] - rss[1][1]) / rss[1][1]
+    print(f"\nload: {last_sent + 1} frames in {LOAD_S:.0f} s ({(last_sent + 1) / LOAD_S:.0f}/s), "
+          f"{len(lat)} poses ({len(lat) / LOAD_S:.0f}/s); latency p50 first quarter "
+          f"{np.median(early):.1f} ms, last quarter {np.median(late):.1f} ms; RSS "
+          f"{rss[1][1] / 1024:.0f} -> {rss[-1][1] / 1024:.0f} MB ({100 * growth:+.1f}%)")
+    assert len(lat) > 10 * LOAD_S  # it keeps processing
+    assert np.median(late) < 2 * np.median(early) + 20  # no growing backlog
+    assert np.percentile(late, 99) < 500
+    assert last_sent - last_pose <= 10  # the newest frames are the ones processed
+    assert growth < 0.10, rss

@@ -1,0 +1,16 @@
+"""The soak mode runs (its 30-minute run is `shepherd soak`, outside the suite)."""
+
+import re
+
+from tests.conftest import endpoint, spawn_cli
+
+
+def test_soak_mode_goes_back_and_forth_and_reports_memory():
+    proc = spawn_cli("--log-level", "INFO", "soak", "--minutes", "0.6", "--sample-s", "5",
+                     "--listen", endpoint())
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 0, out + err[-2000:]
+    assert re.search(r"soak: 0.6 min; RSS [\d.]+ MB after warm-up -> [\d.]+ MB", out)
+    # the mission completed a leg and started back towards the start
+    assert err.count("mission complete") >= 1 and "new mission" not in err
+    assert "command turn_" in err
