@@ -24,7 +24,7 @@ def build(tmp_path_factory) -> Path:
     return out
 
 
-def _run(build: Path, codes: list[int]) -> tuple[list, list[int]]:
+def _run(build: Path, codes: list[int | str]) -> tuple[list, list[int]]:
     res = subprocess.run([str(build / "sim_harness"), str(build / "robosapien_ir.elf"),
                           *map(str, codes)], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
@@ -55,3 +55,15 @@ def test_a_byte_that_is_not_a_code_is_refused(build: Path):
     frames, echoed = _run(build, [0x10, 0x8E])
     assert [f.code for f in frames] == [0x8E]
     assert echoed == [ord("?"), 0x8E]
+
+
+def test_watchdog_stops_the_robot_when_the_host_goes_quiet(build: Path):
+    frames, echoed = _run(build, [0x86, "wait:2500"])
+    assert [f.code for f in frames] == [0x86, 0x8E]
+    assert echoed == [0x86, ord("!")]
+
+
+def test_keep_alives_hold_off_the_watchdog(build: Path):
+    frames, echoed = _run(build, [0x86, "wait:1000", 0x86, "wait:1000", 0x86, "wait:800"])
+    assert [f.code for f in frames] == [0x86, 0x86, 0x86]
+    assert ord("!") not in echoed

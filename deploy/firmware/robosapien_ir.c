@@ -10,6 +10,10 @@
  * of 8T; then 8 bits, most significant first, each a space (T for 0, 4T for 1) followed by a
  * mark of T. A mark is the 39.2 kHz carrier on OC1A (PB1, Arduino pin 9): Timer 1 in CTC
  * mode toggles the pin at 2 x 39.2 kHz (OCR1A = 203: 39.216 kHz). See README.md for wiring.
+ *
+ * Watchdog: after a motion command, if no byte arrives for WATCHDOG_MS (the host re-sends
+ * the current command every second as a keep-alive), the firmware sends STOP by itself and
+ * reports '!'. A crashed host or a pulled USB cable cannot leave the robot walking.
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
@@ -29,6 +33,28 @@ const struct avr_mmcu_vcd_trace_t _mytrace[] _MMCU_ = {
 #define T_US 833.0
 #define CARRIER_HZ 39200UL
 #define RX_SIZE 16
+#define CODE_STOP 0x8E
+#ifndef WATCHDOG_MS
+#define WATCHDOG_MS 1500u
+#endif
+
+static volatile uint16_t ms_ticks; /* Timer 2 overflows every 1.024 ms */
+
+ISR(TIMER2_OVF_vect) { ms_ticks++; }
+
+static uint16_t now_ms(void) {
+    uint16_t t;
+    cli();
+    t = ms_ticks;
+    sei();
+    return t;
+}
+
+static void clock_init(void) {
+    TCCR2A = 0;
+    TCCR2B = _BV(CS22); /* clk / 64: 250 kHz, overflow every 256 counts = 1.024 ms */
+    TIMSK2 = _BV(TOIE2);
+}
 
 static volatile uint8_t rx_buf[RX_SIZE];
 static volatile uint8_t rx_head, rx_tail;
@@ -49,8 +75,10 @@ static void uart_init(void) {
     UCSR0C = _BV(UCSZ01) | _BV(UCSZ00);
 }
 
+static int uart_available(void) { return rx_head != rx_tail; }
+
 static uint8_t uart_read(void) {
-    while (rx_head == rx_tail) {
+    while (!uart_available()) {
     }
     uint8_t b = rx_buf[rx_tail];
     rx_tail = (uint8_t)((rx_tail + 1) % RX_SIZE);
@@ -101,15 +129,28 @@ static void send_frame(uint8_t code) {
 int main(void) {
     uart_init();
     carrier_init();
+    clock_init();
     sei();
+    uint8_t moving = 0;
+    uint16_t last_rx = now_ms();
     for (;;) {
+        if (!uart_available()) {
+            if (moving && (uint16_t)(now_ms() - last_rx) > WATCHDOG_MS) {
+                send_frame(CODE_STOP); /* the host went quiet: stop the robot */
+                moving = 0;
+                uart_write('!');
+            }
+            continue;
+        }
         uint8_t code = uart_read();
+        last_rx = now_ms();
         if (code < 0x80) {
             uart_write('?');
             continue;
         }
         send_frame(code);
         _delay_ms(10); /* a gap between frames */
+        moving = code != CODE_STOP;
         uart_write(code);
     }
 }

@@ -3,10 +3,12 @@
  * change of the IR pin (PB1 / OC1A) and every byte the firmware sends back:
  *     pin <cycle> <level>
  *     uart <cycle> <byte>
- * Usage: sim_harness firmware.elf CODE [CODE ...]   (codes in decimal or 0x hex)
+ * Usage: sim_harness firmware.elf CODE [CODE ...]   (codes in decimal or 0x hex;
+ *        wait:MS runs MS milliseconds more without input)
  */
 #include <stdio.h>
 #include <stdlib.h>
+#include <string.h>
 
 #include "avr_ioport.h"
 #include "avr_uart.h"
@@ -69,6 +71,12 @@ int main(int argc, char **argv) {
         return 1;
     }
     for (int i = 2; i < argc; ++i) {
+        if (strncmp(argv[i], "wait:", 5) == 0) {
+            if (run_until(avr->cycle + strtoul(argv[i] + 5, NULL, 0) * ms)) {
+                return 1;
+            }
+            continue;
+        }
         avr_raise_irq(rx, (uint32_t)strtoul(argv[i], NULL, 0));
         if (run_until(avr->cycle + 60 * ms)) {
             return 1;
