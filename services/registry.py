@@ -19,6 +19,7 @@ SERVICES: dict[str, str] = {
     "ir_transmitter": "services.ir_transmitter.service",
     "calibration": "services.calibration.service",
     "monitor": "services.monitor.service",
+    "viz": "services.viz.service",
 }
 
 

@@ -1,0 +1,84 @@
+"""The ``viz`` service: a Foxglove WebSocket server (open https://app.foxglove.dev or Foxglove
+Studio, connect to ws://HOST:8765) showing the camera image with the detected rhombus and
+the poses on a floor plan. Needs the ``viz`` extra (``pip install '.[viz]'``)."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+from pydantic import Field
+
+from schemas import (
+    CameraGoal,
+    CameraPose,
+    HumanoidPose,
+    MarkerVertices,
+    MissionGoal,
+    MissionState,
+    SimTruth,
+)
+from schemas.keys import (
+    CAMERA_GOAL,
+    HUMANOID_POSE,
+    MISSION_GOAL,
+    MISSION_STATE,
+    ODOM,
+    SIM_TRUTH,
+    VERTICES,
+)
+from services.config import ServiceSettings
+
+
+class Settings(ServiceSettings):
+    host: str = "127.0.0.1"
+    port: int = Field(default=8765, ge=0, le=65535)
+    fps: float = Field(default=10.0, gt=0.0, description="image and scene rate")
+    jpeg_quality: int = Field(default=75, ge=10, le=100)
+
+
+async def main(ctx, config: Settings) -> None:
+    try:
+        import foxglove
+
+        from services.viz.convert import annotations, floor_scene, image
+    except ImportError:
+        ctx.log.error("the viz service needs foxglove-sdk: pip install '.[viz]'")
+        return
+    bus = ctx.bus
+    server = foxglove.start_server(name="shepherd", host=config.host, port=config.port)
+    ctx.log.info("Foxglove server on ws://%s:%d", config.host, server.port)
+    frames = bus.subscribe_frames()
+    verts = bus.subscribe(VERTICES, MarkerVertices)
+    poses = bus.subscribe(HUMANOID_POSE, HumanoidPose)
+    truth_sub = bus.subscribe(SIM_TRUTH, SimTruth)
+    odom_sub = bus.subscribe(ODOM, CameraPose)
+    goal_sub = bus.subscribe(CAMERA_GOAL, CameraGoal)
+    mission_sub = bus.subscribe(MISSION_GOAL, MissionGoal)
+    state_sub = bus.subscribe(MISSION_STATE, MissionState)
+    mc = ctx.deployment.settings.get("mission_controller")
+    waypoints = list(mc.waypoints) if mc is not None else []
+    pose = truth = odom = goal = None
+    try:
+        while True:
+            if (m := mission_sub.get_nowait()) is not None:
+                waypoints = list(m.waypoints)
+            pose = poses.get_nowait() or pose
+            truth = truth_sub.get_nowait() or truth
+            odom = odom_sub.get_nowait() or odom
+            goal = goal_sub.get_nowait() or goal
+            now = time.time_ns()
+            if (f := frames.get_nowait()) is not None and f.image.ndim == 3:
+                foxglove.log("/camera/image", image(f.image, f.header.stamp_ns,
+                                                    config.jpeg_quality))
+            if (v := verts.get_nowait()) is not None:
+                foxglove.log("/camera/annotations", annotations(v))
+            if (s := state_sub.get_nowait()) is not None:
+                foxglove.log("/mission/state", s.model_dump(mode="json"))
+            if pose is not None:
+                foxglove.log("/humanoid/pose", pose.model_dump(mode="json"))
+            foxglove.log("/floor", floor_scene(now, pose, truth, odom, goal, waypoints,
+                                               ctx.deployment.world))
+            await asyncio.sleep(1.0 / config.fps)
+    finally:
+        server.stop()

@@ -1,0 +1,110 @@
+"""The Foxglove live view: conversions, and the server advertising its channels."""
+
+import asyncio
+import base64
+import json
+import os
+import socket
+import struct
+import time
+
+import cv2
+import numpy as np
+
+from schemas import HumanoidPose, MarkerInCamera, MarkerVertices
+from schemas.keys import HUMANOID_POSE, VERTICES
+from services.config import parse_deployment
+from services.launcher import run_deployment
+from services.sim.world import CircleObstacle, World
+from services.viz.convert import annotations, floor_scene, image
+from tests.conftest import free_port
+from tests.helpers.fake_frames import publish_frame, render_marker
+
+VERTS = MarkerVertices(seq=1, stamp_ns=5, found=True, vertices_px=((10, 20), (20, 10),
+                                                                   (30, 20), (20, 30)),
+                       area_ratio=0.05, residual_px=0.1)
+POSE = HumanoidPose(seq=1, stamp_ns=5, x=0.3, y=0.0, yaw=0.2,
+                    marker_in_camera=MarkerInCamera(position=(0, 0, 0.25),
+                                                    quaternion=(0, 0, 0, 1)),
+                    reprojection_px=0.1)
+
+
+def test_conversions():
+    # Foxglove's messages are opaque; their protobuf encodings carry what we put in
+    ann = annotations(VERTS).encode()
+    for u, v in ((10, 20), (20, 10), (30, 20), (20, 30)):  # + 0.5: Foxglove's pixel origin
+        assert struct.pack("<d", u + 0.5) in ann and struct.pack("<d", v + 0.5) in ann
+    miss = annotations(MarkerVertices(seq=2, stamp_ns=5, found=False, reason="too dark"))
+    assert b"no marker: too dark" in miss.encode()
+    data = image(np.zeros((48, 64, 3), np.uint8), 5).encode()
+    start = data.index(b"\xff\xd8")
+    jpeg = data[start:data.rindex(b"\xff\xd9") + 2]
+    assert cv2.imdecode(np.frombuffer(jpeg, np.uint8), 1).shape == (48, 64, 3)
+    scene = floor_scene(5, POSE, None, None, None, [(0.6, 0.0)],
+                        World(obstacles=[CircleObstacle(x=1, y=0, radius=0.1)])).encode()
+    for name in (b"humanoid (estimated)", b"waypoints", b"obstacles"):
+        assert name in scene
+    assert b"humanoid (truth)" not in scene
+
+
+def _ws_messages(port: int, want: set[str], timeout: float = 10.0) -> set[str]:
+    """Connect as a Foxglove client (raw WebSocket) and collect advertised topics."""
+    s = socket.create_connection(("127.0.0.1", port), timeout=timeout)
+    key = base64.b64encode(os.urandom(16)).decode()
+    s.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
+               f"Connection: Upgrade\r\nSec-WebSocket-Key: {key}\r\n"
+               "Sec-WebSocket-Version: 13\r\n"
+               "Sec-WebSocket-Protocol: foxglove.sdk.v1, foxglove.websocket.v1\r\n\r\n"
+               ).encode())
+    buf = b""
+    while b"\r\n\r\n" not in buf:
+        buf += s.recv(4096)
+    head, buf = buf.split(b"\r\n\r\n", 1)
+    assert b" 101 " in head.split(b"\r\n")[0], head
+    topics: set[str] = set()
+    end = time.monotonic() + timeout
+    while not want <= topics and time.monotonic() < end:
+        while len(buf) < 2:
+            buf += s.recv(65536)
+        opcode, n = buf[0] & 0x0F, buf[1] & 0x7F
+        off = 2
+        if n == 126:
+            while len(buf) < 4:
+                buf += s.recv(65536)
+            n, off = int.from_bytes(buf[2:4], "big"), 4
+        elif n == 127:
+            while len(buf) < 10:
+                buf += s.recv(65536)
+            n, off = int.from_bytes(buf[2:10], "big"), 10
+        while len(buf) < off + n:
+            buf += s.recv(65536)
+        payload, buf = buf[off:off + n], buf[off + n:]
+        if opcode == 1:
+            msg = json.loads(payload)
+            if msg.get("op") == "advertise":
+                topics |= {c["topic"] for c in msg["channels"]}
+    s.close()
+    return topics
+
+
+def test_live_view_serves_the_camera_and_the_floor_plan(router, make_bus):
+    port = free_port()
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"viz": {"port": port, "fps": 20}}})
+    bus = make_bus("feeder")
+    frame = render_marker(0.3).image
+
+    async def go() -> set[str]:
+        task = asyncio.create_task(run_deployment(dep, duration=20))
+        await asyncio.sleep(1.5)
+        for k in range(10):
+            publish_frame(bus, frame, k)
+            bus.put(VERTICES, VERTS)
+            bus.put(HUMANOID_POSE, POSE)
+            await asyncio.sleep(0.1)
+        topics = await asyncio.to_thread(
+            _ws_messages, port, {"/camera/image", "/camera/annotations", "/floor"})
+        task.cancel()
+        return topics
+    topics = asyncio.run(go())
+    assert {"/camera/image", "/camera/annotations", "/floor", "/humanoid/pose"} <= topics
