@@ -83,6 +83,11 @@ class Keys:
         return key[len(prefix):] if key.startswith(prefix) else key
 
 
+def model_or_none(suffix: str) -> type[Message] | None:
+    """Payload model of a topic suffix, None for raw frames and unknown keys."""
+    return TOPICS.get(suffix)
+
+
 def model_for(suffix: str) -> type[Message] | None:
     """Payload model of a topic suffix; raises KeyError naming the unknown key."""
     if suffix not in TOPICS:

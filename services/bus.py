@@ -355,26 +355,14 @@ class Bus:
         return header
 
     def decode_frame(self, sample: zenoh.Sample) -> Frame | None:
-        """Decode a ``camera/frame`` sample; count and return None when invalid."""
-        key = str(sample.key_expr)
-        if sample.attachment is None:
-            self.rejections.add(key, "frame without a header attachment")
+        """Decode a ``camera/frame`` sample now; count and return None when invalid."""
+        header = self.frame_header(sample)
+        if header is None:
             return None
         try:
-            header = FrameHeader.model_validate_json(sample.attachment.to_bytes())
-        except ValidationError as err:
-            first = err.errors()[0]
-            where = ".".join(str(p) for p in first["loc"]) or "attachment"
-            self.rejections.add(key, f"invalid frame header: {where}: {first['msg']}")
-            return None
-        except Exception as err:
-            self.rejections.add(key, f"undecodable frame header: {err}")
-            return None
-        data = sample.payload.to_bytes()
-        try:
-            image = decode_image(header, data)
+            image = decode_image(header, sample.payload.to_bytes())
         except ValueError as err:
-            self.rejections.add(key, str(err))
+            self.rejections.add(str(sample.key_expr), str(err))  # type: ignore[union-attr]
             return None
         return Frame(header, image, time.time_ns())
 

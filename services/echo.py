@@ -5,7 +5,8 @@ from __future__ import annotations
 import asyncio
 import time
 
-from schemas import Keys, Message, model_for
+from schemas import Keys, Message
+from schemas.keys import model_or_none
 from services.bus import Bus, ZenohSettings, open_session
 from services.pretty import describe
 
@@ -30,10 +31,7 @@ async def echo(settings: ZenohSettings, namespace: str, key_expr: str, *,
                     break
                 key = str(sample.key_expr)
                 suffix = keys.suffix(key)
-                try:
-                    model = model_for(suffix)
-                except KeyError:
-                    model = None
+                model = model_or_none(suffix)
                 if suffix == "camera/frame":
                     frame = bus.decode_frame(sample)
                     now = time.monotonic()

@@ -96,13 +96,3 @@ def quaternion_from_R(R: np.ndarray) -> tuple[float, float, float, float]:
     if q[3] < 0:
         q = -q
     return float(q[0]), float(q[1]), float(q[2]), float(q[3])
-
-
-def R_from_quaternion(q: tuple[float, float, float, float] | np.ndarray) -> np.ndarray:
-    """Rotation matrix of a quaternion (x, y, z, w)."""
-    x, y, z, w = np.asarray(q, dtype=np.float64) / np.linalg.norm(q)
-    return np.array([
-        [1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
-        [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
-        [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)],
-    ])

@@ -19,7 +19,8 @@ import zenoh
 from mcap.reader import make_reader
 from mcap.writer import Writer
 
-from schemas import Keys, model_for
+from schemas import Keys
+from schemas.keys import model_or_none
 from services.bus import (
     FRAME_ENCODING,
     JPEG_ENCODING,
@@ -59,10 +60,7 @@ async def record(settings: ZenohSettings, namespace: str, out: Path, key_exprs: 
             if key in channels:
                 return channels[key]
             suffix = keys.suffix(key)
-            try:
-                model = model_for(suffix)
-            except KeyError:
-                model = None
+            model = model_or_none(suffix)
             if suffix == "camera/frame":
                 cid = writer.register_channel(key, FRAME_MESSAGE_ENCODING, 0)
             elif model is not None:

@@ -15,7 +15,6 @@ import cv2
 import numpy as np
 
 from services.camera import CameraModel
-from services.geometry import inv_T
 
 MAGENTA_BGR = (255, 0, 255)
 BODY_BGR = (58, 62, 66)
@@ -197,15 +196,3 @@ def _blur_kernel(length: float, angle_deg: float) -> np.ndarray:
         x, y = c + t * d
         k[round(y), round(x)] += 1.0
     return k / k.sum()
-
-
-def marker_view(T_camera_marker: np.ndarray) -> tuple[float, float]:
-    """(distance m, angle rad between the marker normal and the line of sight)."""
-    t = T_camera_marker[:3, 3]
-    dist = float(np.linalg.norm(t))
-    cos_a = float(-(T_camera_marker[:3, 2] @ t) / max(dist, 1e-12))
-    return dist, float(np.arccos(np.clip(cos_a, -1.0, 1.0)))
-
-
-def T_camera_from_world(T_world_camera: np.ndarray) -> np.ndarray:
-    return inv_T(T_world_camera)

@@ -1,13 +1,11 @@
-"""Total-least-squares lines from point moments, the optimal two-line split, intersections.
+"""The optimal two-line split (from prefix moments), robust line fits, intersections.
 
 A line is ``(nx, ny, d)`` with unit normal (nx, ny): points (x, y) on it satisfy
-nx x + ny y = d (pixels). Fits work on moment sums, so a refit after rejecting points is one
-masked sum, and the best split of an ordered point list is one cumulative sum.
+nx x + ny y = d (pixels). The best split of an ordered point list is one cumulative sum of
+moments; each side is then fitted by OpenCV's Huber-weighted total least squares.
 """
 
 from __future__ import annotations
-
-import math
 
 import cv2
 import numpy as np
@@ -16,32 +14,9 @@ Line = tuple[float, float, float]
 
 
 def moment_rows(points: np.ndarray) -> np.ndarray:
-    """(N, 6) rows 1, x, y, x², y², xy of (N, 2) points, centred on their first point's
-    neighbourhood by the caller for numerical range."""
+    """(N, 6) rows 1, x, y, x², y², xy of (N, 2) points (centre them first: numerical range)."""
     x, y = points[:, 0], points[:, 1]
     return np.column_stack([np.ones_like(x), x, y, x * x, y * y, x * y])
-
-
-def line_from_sums(s: np.ndarray) -> tuple[Line, float]:
-    """TLS line and its residual sum of squares from moment sums (n, Σx, Σy, Σx², Σy², Σxy)."""
-    n, sx, sy, sxx, syy, sxy = (float(v) for v in s)
-    mx, my = sx / n, sy / n
-    a, c, b = sxx - sx * mx, syy - sy * my, sxy - sx * my
-    theta = 0.5 * math.atan2(2 * b, a - c)  # direction of the major axis
-    nx, ny = -math.sin(theta), math.cos(theta)
-    half = 0.5 * (a + c)
-    sse = max(half - math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0)), 0.0)
-    return (nx, ny, nx * mx + ny * my), sse
-
-
-def fit_line(points: np.ndarray) -> Line:
-    """TLS line through (N, 2) points, N >= 2."""
-    return line_from_sums(moment_rows(points).sum(0))[0]
-
-
-def distances(points: np.ndarray, line: Line) -> np.ndarray:
-    """Signed orthogonal distances (px) of points to a line."""
-    return points[:, 0] * line[0] + points[:, 1] * line[1] - line[2]
 
 
 def best_split(rows: np.ndarray, min_points: int = 3) -> int:
