@@ -181,6 +181,8 @@ def test_serial_backend_writes_the_codes_and_survives_unplug(tmp_path: Path):
         await tx.retry_pending()
         assert pty.read(1, timeout=0.3) == b""
         assert tx.status().connected
+        await tx.heartbeat()  # the firmware's watchdog is fed with 0x00
+        assert pty.read(1) == b"\x00"
     asyncio.run(go())
     tx.backend.close()
     pty.unplug()
@@ -263,3 +265,16 @@ def test_hot_swap_under_a_stream_of_commands_loses_none(router, make_bus):
     assert status and status[0].backend == "sim"
     assert status[0].sent == 40 and status[0].failed == 0
     assert "rejected" in status[0].last_error and "port" in status[0].last_error
+
+
+def test_the_service_feeds_the_firmware_watchdog(tmp_path: Path, router):
+    pty = Pty(tmp_path / "ttyRobo")
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"ir_transmitter": {
+                                "backend": "serial", "options": {"port": str(pty.link)}}}})
+    asyncio.run(run_deployment(dep, duration=2.0))
+    data = pty.read(100, timeout=0.5)
+    pty.unplug()
+    beats = data.count(0)
+    assert beats >= 8  # every 0.15 s: well inside the firmware's 0.4 s watchdog
+    assert data.endswith(bytes([0x8E])) or 0x8E in data  # and stop at shutdown

@@ -2,6 +2,7 @@
 packages; make test installs them): the traced IR pin decodes back to the codes sent."""
 
 import subprocess
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -24,17 +25,31 @@ def build(tmp_path_factory) -> Path:
     return out
 
 
-def _run(build: Path, codes: list[int | str]) -> tuple[list, list[int]]:
+@dataclass
+class Simulation:
+    frames: list        # decoded IR frames
+    echoed: list[int]   # bytes the firmware sent back
+    fed_s: list[float]  # when each byte was fed to its UART
+    rising_s: list[float]  # rising edges of the IR pin
+
+
+def _simulate(build: Path, codes: list[int | str]) -> Simulation:
     res = subprocess.run([str(build / "sim_harness"), str(build / "robosapien_ir.elf"),
                           *map(str, codes)], capture_output=True, text=True, timeout=120)
     assert res.returncode == 0, res.stderr
-    lines = res.stdout.splitlines()
-    freq = next(int(ln.split()[1]) for ln in lines if ln.startswith("freq"))
-    pins = [ln.split() for ln in lines if ln.startswith("pin")]
+    lines = [ln.split() for ln in res.stdout.splitlines()]
+    freq = next(int(ln[1]) for ln in lines if ln[0] == "freq")
+    pins = [ln for ln in lines if ln[0] == "pin"]
     t = np.array([int(p[1]) for p in pins]) / freq
     level = np.array([int(p[2]) & 1 for p in pins])
-    echoed = [int(ln.split()[2]) for ln in lines if ln.startswith("uart")]
-    return decode_trace(t, level), echoed
+    return Simulation(decode_trace(t, level), [int(ln[2]) for ln in lines if ln[0] == "uart"],
+                      [int(ln[1]) / freq for ln in lines if ln[0] == "rx"],
+                      [float(x) for x in t[level == 1]])
+
+
+def _run(build: Path, codes: list[int | str]) -> tuple[list, list[int]]:
+    sim = _simulate(build, codes)
+    return sim.frames, sim.echoed
 
 
 def test_every_command_is_emitted_with_the_right_carrier_and_timing(build: Path):
@@ -57,13 +72,17 @@ def test_a_byte_that_is_not_a_code_is_refused(build: Path):
     assert echoed == [ord("?"), 0x8E]
 
 
-def test_watchdog_stops_the_robot_when_the_host_goes_quiet(build: Path):
-    frames, echoed = _run(build, [0x86, "wait:2500"])
-    assert [f.code for f in frames] == [0x86, 0x8E]
-    assert echoed == [0x86, ord("!")]
+def test_watchdog_stops_the_robot_within_half_a_second_of_silence(build: Path):
+    # walk, three heartbeats, then the host goes quiet (crash, pulled cable)
+    sim = _simulate(build, [0x86, "wait:100", 0, "wait:100", 0, "wait:100", 0, "wait:1000"])
+    assert [f.code for f in sim.frames] == [0x86, 0x8E]
+    assert sim.echoed == [0x86, ord("!")]
+    stop_start = next(t for t in sim.rising_s if t > sim.fed_s[-1])
+    assert 0.35 < stop_start - sim.fed_s[-1] < 0.5, stop_start - sim.fed_s[-1]
 
 
-def test_keep_alives_hold_off_the_watchdog(build: Path):
-    frames, echoed = _run(build, [0x86, "wait:1000", 0x86, "wait:1000", 0x86, "wait:800"])
-    assert [f.code for f in frames] == [0x86, 0x86, 0x86]
-    assert ord("!") not in echoed
+def test_heartbeats_hold_off_the_watchdog(build: Path):
+    beats: list[int | str] = [x for _ in range(8) for x in (0, "wait:140")]
+    frames, echoed = _run(build, [0x86, *beats, 0x8E])
+    assert [f.code for f in frames] == [0x86, 0x8E]  # no watchdog stop in between
+    assert ord("!") not in echoed and ord("?") not in echoed

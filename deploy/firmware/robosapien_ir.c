@@ -3,17 +3,18 @@
  *
  * Host protocol (services/ir_transmitter, serial backend): 115200 baud 8N1; the host sends
  * one raw byte per command, the Robosapien code itself (0x80-0xFF; e.g. 0x86 walk forward,
- * 0x8E stop). Each valid code is sent as one IR frame and echoed back when done; anything
- * below 0x80 is answered with '?' and ignored.
+ * 0x8E stop). Each valid code is sent as one IR frame and echoed back when done; 0x00 is a
+ * heartbeat; anything else below 0x80 is answered with '?' and ignored.
  *
  * IR frame (as light; implementation notes, section 1): T = 1/1200 s ~ 833 us; a start mark
  * of 8T; then 8 bits, most significant first, each a space (T for 0, 4T for 1) followed by a
  * mark of T. A mark is the 39.2 kHz carrier on OC1A (PB1, Arduino pin 9): Timer 1 in CTC
  * mode toggles the pin at 2 x 39.2 kHz (OCR1A = 203: 39.216 kHz). See README.md for wiring.
  *
- * Watchdog: after a motion command, if no byte arrives for WATCHDOG_MS (the host re-sends
- * the current command every second as a keep-alive), the firmware sends STOP by itself and
- * reports '!'. A crashed host or a pulled USB cable cannot leave the robot walking.
+ * Watchdog: the host sends a heartbeat byte 0x00 every 150 ms (no IR, no reply). After a
+ * motion command, if no byte at all arrives for WATCHDOG_MS (400 ms), the firmware sends STOP
+ * by itself and reports '!'. A crashed host or a pulled USB cable cannot leave the robot
+ * walking for more than half a second.
  */
 #include <avr/interrupt.h>
 #include <avr/io.h>
@@ -34,8 +35,9 @@ const struct avr_mmcu_vcd_trace_t _mytrace[] _MMCU_ = {
 #define CARRIER_HZ 39200UL
 #define RX_SIZE 16
 #define CODE_STOP 0x8E
+#define CODE_HEARTBEAT 0x00
 #ifndef WATCHDOG_MS
-#define WATCHDOG_MS 1500u
+#define WATCHDOG_MS 400u
 #endif
 
 static volatile uint16_t ms_ticks; /* Timer 2 overflows every 1.024 ms */
@@ -144,6 +146,9 @@ int main(void) {
         }
         uint8_t code = uart_read();
         last_rx = now_ms();
+        if (code == CODE_HEARTBEAT) {
+            continue;
+        }
         if (code < 0x80) {
             uart_write('?');
             continue;

@@ -2,7 +2,8 @@
  * Runs the firmware in simavr (libsimavr), feeds bytes into its UART and prints every
  * change of the IR pin (PB1 / OC1A) and every byte the firmware sends back:
  *     pin <cycle> <level>
- *     uart <cycle> <byte>
+ *     uart <cycle> <byte>          (sent by the firmware)
+ *     rx <cycle> <byte>            (fed to the firmware)
  * Usage: sim_harness firmware.elf CODE [CODE ...]   (codes in decimal or 0x hex;
  *        wait:MS runs MS milliseconds more without input)
  */
@@ -77,7 +78,9 @@ int main(int argc, char **argv) {
             }
             continue;
         }
-        avr_raise_irq(rx, (uint32_t)strtoul(argv[i], NULL, 0));
+        uint32_t byte = (uint32_t)strtoul(argv[i], NULL, 0);
+        printf("rx %llu %u\n", (unsigned long long)avr->cycle, byte);
+        avr_raise_irq(rx, byte);
         if (run_until(avr->cycle + 60 * ms)) {
             return 1;
         }

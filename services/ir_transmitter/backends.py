@@ -118,6 +118,17 @@ class SerialBackend:
             self.close()
             raise BackendError(f"serial port {self.port} failed: {err}") from None
 
+    def heartbeat(self) -> None:
+        """Send the heartbeat byte 0x00 (the firmware's watchdog stops the robot without it)."""
+        if self._ser is None:
+            raise BackendError(f"serial port {self.port} is disconnected")
+        import serial
+        try:
+            self._ser.write(b"\x00")
+        except (serial.SerialException, OSError) as err:
+            self.close()
+            raise BackendError(f"serial port {self.port} failed: {err}") from None
+
     def reconnect(self) -> bool:
         """Try to reopen now (rate-limited); True if the port is open."""
         if self._ser is not None:

@@ -28,6 +28,8 @@ class Settings(ServiceSettings):
     min_gap_s: float = Field(default=0.06, ge=0.0, description="between IR frames (>= 30 ms)")
     repeat_window_s: float = Field(default=0.5, ge=0.0)
     fresh_s: float = Field(default=1.0, gt=0.0)
+    heartbeat_s: float = Field(default=0.15, gt=0.0, le=0.3,
+                               description="heartbeat to the firmware's 0.4 s watchdog")
 
 
 class Transmitter:
@@ -67,6 +69,16 @@ class Transmitter:
         self._last = (cmd.command, time.monotonic())
         return True
 
+    async def heartbeat(self) -> None:
+        """Keep the firmware's watchdog fed (serial backend only)."""
+        beat = getattr(self.backend, "heartbeat", None)
+        if beat is None:
+            return
+        try:
+            await asyncio.to_thread(beat)
+        except BackendError as err:
+            self.last_error = str(err)
+
     async def retry_pending(self) -> None:
         """After a reconnect: resend the latest failed command if still fresh."""
         cmd = self._pending
@@ -98,12 +110,13 @@ async def main(ctx, config: Settings) -> None:
     requests = bus.subscribe(IR_BACKEND, IrBackendRequest, latest=False, queue=8)
     bus.declare_queryable(IR_BACKEND, tx.status)
     pending: set[asyncio.Future] = set()
+    last_beat = time.monotonic()
     try:
         while True:
             cmd_task = asyncio.ensure_future(commands.recv())
             req_task = asyncio.ensure_future(requests.recv())
             pending = {cmd_task, req_task}
-            done, _ = await asyncio.wait(pending, timeout=0.5,
+            done, _ = await asyncio.wait(pending, timeout=config.heartbeat_s,
                                          return_when=asyncio.FIRST_COMPLETED)
             for task in (cmd_task, req_task):
                 if task not in done:
@@ -125,6 +138,9 @@ async def main(ctx, config: Settings) -> None:
                     log.warning("IR %s not sent: %s", cmd.command.value, tx.last_error)
             else:
                 await tx.retry_pending()
+            if time.monotonic() - last_beat >= config.heartbeat_s:
+                await tx.heartbeat()
+                last_beat = time.monotonic()
     finally:
         for task in pending:
             task.cancel()
