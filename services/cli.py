@@ -54,11 +54,18 @@ def cmd_run(args: argparse.Namespace) -> int:
         dep.zenoh.multicast_scouting = False
     if args.listen:
         dep.zenoh.listen = args.listen
+    import zenoh
     try:
         return asyncio.run(run_deployment(dep, only=args.only or None, duration=args.duration,
                                           processes=args.processes, child=args.child))
     except KeyError as err:
         print(f"shepherd: {err.args[0]}", file=sys.stderr)
+        return 2
+    except zenoh.ZError as err:
+        eps = ", ".join(dep.zenoh.listen + dep.zenoh.connect) or "the default endpoints"
+        print(f"shepherd: cannot open the Zenoh session ({eps}): {str(err).split(' at ')[0]}"
+              " - is another shepherd run using it? Pick others with --listen/--connect.",
+              file=sys.stderr)
         return 2
 
 

@@ -122,3 +122,10 @@ def test_sigterm_stops_everything_within_2s_and_sends_stop(tmp_path: Path, route
         if launcher.poll() is None:
             launcher.kill()
         launcher.communicate()
+
+
+def test_a_busy_listen_endpoint_is_a_clear_error(router):
+    port = router.rsplit(":", 1)[1]  # the router fixture already listens there
+    out = run_cli("run", "--listen", f"tcp/127.0.0.1:{port}", "--duration", "5")
+    assert out.returncode == 2
+    assert "cannot open the Zenoh session" in out.stderr and "Traceback" not in out.stderr
