@@ -9,6 +9,7 @@ cv2.calibrateCamera), ``e2e`` (frame to ``humanoid/pose`` through the services).
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 import socket
 import sys
@@ -522,7 +523,7 @@ async def _e2e_run(ep: str, frames: list[np.ndarray], rate: float | None, durati
                 when.append((sent_at[p.seq] / 1e9) - (sent_at[0] / 1e9))
         if task:
             task.cancel()
-            with __import__("contextlib").suppress(BaseException):
+            with contextlib.suppress(BaseException):
                 await task
         bus.close()
     lat_a, when_a = np.array(lat or [float("nan")]), np.array(when or [0.0])

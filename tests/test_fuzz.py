@@ -15,7 +15,6 @@ from schemas import (
     IrCommand,
     MarkerVertices,
     ServiceStats,
-    model_for,
 )
 from schemas.keys import FRAME, IR_BACKEND, IR_COMMAND, SIM_IR, VERTICES
 from services.bus import encode_frame
@@ -164,4 +163,3 @@ def test_fuzz_every_subscribed_key_of_every_service(router, sessions):
     total = sum(n for st_ in stats.values() for r_ in st_.rejected.values() for n in r_.values())
     print(f"\nfuzz: {tried[0]} inputs on {len(SUBSCRIBED)} keys; {total} rejections counted "
           f"by {len(stats)} services; none crashed")
-    assert model_for("ir/command") is IrCommand

@@ -43,12 +43,8 @@ def test_found_in_at_least_97_percent_of_views(accuracy_run):
 
 
 def test_no_detection_without_a_marker():
+    """Frames with the humanoid's body, clutter and pink distractors, but no marker."""
     ex = RhombusExtractor()
-    for view in random_views(20, seed=3):
-        ex.reset()
-        cam_only = render_marker(distance_m=0.3, seed=view.style.seed)  # same clutter
-        assert cam_only.marker_visible
-    # frames with clutter and pink distractors but no marker
     from services.camera import CameraModel
     from services.config import Geometry
     from services.sim.render import RenderStyle, render_view
