@@ -22,6 +22,7 @@ from pydantic import (
 from pydantic.functional_validators import AfterValidator
 
 from services.bus import ZenohSettings
+from services.geometry import T_base_camera, T_humanoid_marker
 from services.sim.world import World
 
 
@@ -65,12 +66,10 @@ class Geometry(BaseModel):
 
     def T_base_camera(self) -> np.ndarray:
         """4x4 transform camera optical frame -> camera robot base (REP-103 base)."""
-        from services.geometry import T_base_camera
         return T_base_camera(self.camera_forward_m, self.camera_height_m, self.camera_pitch_rad)
 
     def T_humanoid_marker(self) -> np.ndarray:
         """4x4 transform marker frame -> humanoid frame (marker on the humanoid's back)."""
-        from services.geometry import T_humanoid_marker
         return T_humanoid_marker(self.marker_back_offset_m, self.marker_centre_height_m)
 
 
