@@ -15,7 +15,10 @@ from typing import Annotated, Any, ClassVar, Literal
 from pydantic import BaseModel, ConfigDict, Field, field_validator
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
+#: a world coordinate (m): finite and within 10 km, so downstream arithmetic cannot overflow
+Coord = Annotated[float, Field(allow_inf_nan=False, ge=-1e4, le=1e4)]
 Vec2 = tuple[FiniteFloat, FiniteFloat]
+CoordXY = tuple[Coord, Coord]
 Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 Row3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
@@ -104,8 +107,8 @@ class CameraPose(Message):
     """Camera robot base ``B`` in the world: position in m, yaw in rad about world z."""
 
     stamp_ns: int = Field(default_factory=now_ns, ge=0)
-    x: FiniteFloat
-    y: FiniteFloat
+    x: Coord
+    y: Coord
     yaw: FiniteFloat
 
 
@@ -113,8 +116,8 @@ class CameraGoal(Message):
     """Where the camera robot base should stand (world, m / rad) and why."""
 
     stamp_ns: int = Field(default_factory=now_ns, ge=0)
-    x: FiniteFloat
-    y: FiniteFloat
+    x: Coord
+    y: Coord
     yaw: FiniteFloat
     reason: str = ""
 
@@ -137,7 +140,7 @@ class MarkerVertices(Message):
 class MarkerInCamera(Message):
     """Pose of the marker frame ``M`` in the camera optical frame ``C`` (T_camera_marker)."""
 
-    position: Vec3 = Field(description="m, camera optical frame")
+    position: tuple[Coord, Coord, Coord] = Field(description="m, camera optical frame")
     quaternion: tuple[FiniteFloat, FiniteFloat, FiniteFloat, FiniteFloat] = Field(
         description="x, y, z, w"
     )
@@ -156,8 +159,8 @@ class HumanoidPose(Message):
 
     seq: int = Field(ge=0)
     stamp_ns: int = Field(ge=0)
-    x: FiniteFloat | None = None
-    y: FiniteFloat | None = None
+    x: Coord | None = None
+    y: Coord | None = None
     yaw: FiniteFloat | None = None
     marker_in_camera: MarkerInCamera
     reprojection_px: FiniteFloat = Field(ge=0.0)
@@ -172,7 +175,7 @@ class MissionGoal(Message):
     """Waypoints for the humanoid on the floor (world, m)."""
 
     stamp_ns: int = Field(default_factory=now_ns, ge=0)
-    waypoints: list[Vec2] = Field(max_length=1000)
+    waypoints: list[CoordXY] = Field(max_length=1000)
     tolerance_m: FiniteFloat = Field(default=0.03, gt=0.0)
 
 
@@ -246,8 +249,8 @@ class ServiceStats(Message):
 
 
 class Pose2D(Message):
-    x: FiniteFloat
-    y: FiniteFloat
+    x: Coord
+    y: Coord
     yaw: FiniteFloat
 
 

@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from dataclasses import dataclass
 
 from pydantic import Field
 
@@ -15,6 +16,8 @@ from schemas.keys import CAMERA_GOAL, HUMANOID_POSE, MISSION_HOLD, ODOM
 from services.camera_planner.planner import CameraPlanner, PlannerParams
 from services.config import ServiceSettings
 from services.geometry import wrap_angle
+
+Pose = tuple[float, float, float]
 
 
 class Settings(ServiceSettings):
@@ -27,8 +30,33 @@ class Settings(ServiceSettings):
     pose_timeout_s: float = Field(default=1.0, gt=0.0)
 
 
+@dataclass
+class GoalFilter:
+    """Smooths the planner's goals and decides when one is worth publishing."""
+
+    smoothing: float
+    deadband_m: float
+    goal: Pose | None = None
+    published: Pose | None = None
+    holding: bool = False
+
+    def update(self, new: Pose, hold: bool) -> Pose | None:
+        """The smoothed goal, if it moved enough to publish (a hold change resets it)."""
+        a, g = self.smoothing, self.goal
+        self.goal = new if g is None or hold != self.holding else (
+            g[0] + a * (new[0] - g[0]), g[1] + a * (new[1] - g[1]),
+            g[2] + a * wrap_angle(new[2] - g[2]))
+        self.holding = hold
+        p, g = self.published, self.goal
+        if p is None or math.hypot(g[0] - p[0], g[1] - p[1]) > self.deadband_m or \
+                abs(wrap_angle(g[2] - p[2])) > math.radians(2):
+            self.published = g
+            return g
+        return None
+
+
 async def main(ctx, config: Settings) -> None:
-    bus, dep = ctx.bus, ctx.deployment
+    bus, dep, log = ctx.bus, ctx.deployment, ctx.log
     g = dep.geometry
     planner = CameraPlanner(PlannerParams(
         distance_m=config.distance_m, critical_angle_rad=math.radians(config.critical_angle_deg),
@@ -36,36 +64,32 @@ async def main(ctx, config: Settings) -> None:
         marker_back_offset_m=g.marker_back_offset_m), dep.world)
     poses = bus.subscribe(HUMANOID_POSE, HumanoidPose, latest=True)
     odom = bus.subscribe(ODOM, CameraPose, latest=True)
-    humanoid = camera = None
+    goals = GoalFilter(config.smoothing, config.deadband_m)
+    humanoid: Pose | None = None
+    camera: Pose | None = None
     pose_mono = 0.0
-    goal: tuple[float, float, float] | None = None
-    published: tuple[float, float, float] | None = None
-    was_holding = False
     try:
         while True:
             if (p := poses.get_nowait()) is not None and p.x is not None:
-                humanoid, pose_mono = (p.x, p.y, p.yaw), time.monotonic()
+                humanoid, pose_mono = (p.x, p.y, p.yaw), time.monotonic()  # type: ignore
             if (o := odom.get_nowait()) is not None:
                 camera = (o.x, o.y, o.yaw)
             fresh = humanoid is not None and time.monotonic() - pose_mono < config.pose_timeout_s
             if fresh and camera is not None:
-                plan = planner.plan(humanoid, camera)  # type: ignore[arg-type]
-                a = config.smoothing
-                goal = plan.goal if goal is None or plan.hold != was_holding else (
-                    goal[0] + a * (plan.goal[0] - goal[0]), goal[1] + a * (plan.goal[1] - goal[1]),
-                    goal[2] + a * wrap_angle(plan.goal[2] - goal[2]))
-                if published is None or math.hypot(goal[0] - published[0],
-                                                   goal[1] - published[1]) > config.deadband_m \
-                        or abs(wrap_angle(goal[2] - published[2])) > math.radians(2):
-                    bus.put(CAMERA_GOAL, CameraGoal(x=goal[0], y=goal[1], yaw=goal[2],
-                                                    reason=plan.reason))
-                    published = goal
-                if plan.hold or was_holding:
-                    bus.put(MISSION_HOLD, Hold(hold=plan.hold, reason=(
-                        f"view {math.degrees(plan.view_angle_rad):.0f} deg off the marker "
-                        f"normal; {plan.reason}")))
-                was_holding = plan.hold
+                try:
+                    was_holding = goals.holding
+                    plan = planner.plan(humanoid, camera)  # type: ignore[arg-type]
+                    if (goal := goals.update(plan.goal, plan.hold)) is not None:
+                        bus.put(CAMERA_GOAL, CameraGoal(x=goal[0], y=goal[1], yaw=goal[2],
+                                                        reason=plan.reason))
+                    if plan.hold or was_holding:
+                        bus.put(MISSION_HOLD, Hold(hold=plan.hold, reason=(
+                            f"view {math.degrees(plan.view_angle_rad):.0f} deg off the marker "
+                            f"normal; {plan.reason}")))
+                except Exception:
+                    log.exception("planning failed for humanoid %s, camera %s", humanoid, camera)
+                    goals = GoalFilter(config.smoothing, config.deadband_m)
             await asyncio.sleep(1.0 / config.rate_hz)
     finally:
-        if was_holding:
+        if goals.holding:
             bus.put(MISSION_HOLD, Hold(hold=False, reason="camera planner stopped"))

@@ -83,7 +83,13 @@ async def main(ctx, config: Settings) -> None:
             if hold and now - hold_mono > config.hold_timeout_s:
                 hold = False
             was_done = ctrl._phase is Phase.DONE
-            d = ctrl.decide(pose, now - pose_mono if pose else math.inf, hold)
+            try:
+                d = ctrl.decide(pose, now - pose_mono if pose else math.inf, hold)
+            except Exception:
+                log.exception("control step failed; stopping the humanoid")
+                send(Command.STOP)
+                await asyncio.sleep(period)
+                continue
             if d.command is not last_cmd or now - last_sent >= config.keepalive_s:
                 send(d.command)
             bus.put(MISSION_STATE, MissionState(phase=d.phase, waypoint_index=d.waypoint_index,
