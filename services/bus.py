@@ -367,16 +367,35 @@ class Bus:
         return Frame(header, image, time.time_ns())
 
     def subscribe_frames(self, *, latest: bool = True, queue: int = 2) -> Subscription[Frame]:
-        """Frames, validated on receipt (header and size) but copied and decoded only when
-        taken: under a flood the frames the latest-value policy drops cost no copy."""
-        sub = _FrameSubscription(asyncio.get_running_loop(), 1 if latest else queue, self)
+        """Frames, newest first. Zenoh keeps them in a ring of the policy's size, so under a
+        flood stale frames are dropped before they reach Python; a reader thread validates
+        each header and size on receipt; pixels are copied and decoded only when taken."""
+        size = 1 if latest else queue
+        sub = _FrameSubscription(asyncio.get_running_loop(), size, self)
+        zsub = self.session.declare_subscriber(self.keys.key(FRAME),
+                                               zenoh.handlers.RingChannel(size))
+        ring = zsub.handler
 
-        def on_sample(sample: zenoh.Sample) -> None:
-            header = self.frame_header(sample)
-            if header is not None:
-                sub.push((header, sample.payload, time.time_ns(), str(sample.key_expr)))
+        def pump() -> None:
+            while True:
+                try:
+                    sample = ring.recv()
+                except zenoh.ZError:  # undeclared: the channel is closed
+                    return
+                header = self.frame_header(sample)
+                if header is not None:
+                    sub.push((header, sample.payload, time.time_ns(), str(sample.key_expr)))
 
-        sub._undeclare = self._declare(self.keys.key(FRAME), on_sample)
+        threading.Thread(target=pump, name=f"frames-{self.service}", daemon=True).start()
+        undeclared = threading.Event()
+
+        def undeclare() -> None:
+            if not undeclared.is_set():
+                undeclared.set()
+                zsub.undeclare()
+
+        self._closers.append(undeclare)
+        sub._undeclare = undeclare
         return sub  # type: ignore[return-value]
 
     def subscribe_raw(self, key_expr: str, *, queue: int = 256) -> Subscription[zenoh.Sample]:
