@@ -152,22 +152,32 @@ def test_frame_source_publishes_an_image_folder_and_survives_a_missing_device(
     folder.mkdir()
     for i in range(3):
         cv2.imwrite(str(folder / f"{i}.png"), np.full((24, 32, 3), 40 * i, np.uint8))
-    dep = parse_deployment({
+    looping = parse_deployment({
         "zenoh": {"connect": [router], "multicast_scouting": False},
-        "services": {"frame_source": {"source": str(folder), "fps": 50, "loop": False}}})
+        "services": {"frame_source": {"source": str(folder), "fps": 20, "loop": True}}})
+    once = parse_deployment({
+        "zenoh": {"connect": [router], "multicast_scouting": False},
+        "services": {"frame_source": {"source": str(folder), "fps": 20, "loop": False}}})
     missing = parse_deployment({
         "zenoh": {"connect": [router], "multicast_scouting": False},
         "services": {"frame_source": {"source": "/dev/video99", "retry_s": 0.2}}})
     bus = make_bus("viewer")
 
     async def go():
-        frames = bus.subscribe_frames(latest=False, queue=10)
+        frames = bus.subscribe_frames(latest=False, queue=64)
         await asyncio.sleep(0.3)
-        await asyncio.wait_for(run_deployment(dep), 15)  # ends by itself after 3 images
+        await run_deployment(looping, duration=2.0)
         await asyncio.sleep(0.3)
         got = [frames.get_nowait() for _ in range(frames.pending())]
-        assert [f.header.seq for f in got] == [0, 1, 2]
-        assert [int(f.image[0, 0, 0]) for f in got] == [0, 40, 80]
+        # (the very first frame may go out before the new session has seen our subscriber)
+        seqs = [f.header.seq for f in got]
+        levels = [int(f.image[0, 0, 0]) for f in got]
+        assert len(got) >= 20 and seqs == list(range(seqs[0], seqs[0] + len(seqs)))
+        assert levels == [[0, 40, 80][s % 3] for s in seqs]  # the folder, in name order, looped
+        await asyncio.wait_for(run_deployment(once), 15)  # not looping: ends by itself
+        await asyncio.sleep(0.3)
+        tail = [f.header.seq for f in [frames.get_nowait() for _ in range(frames.pending())]]
+        assert tail and tail[-1] == 2 and tail == sorted(tail)
         # a device that is not there: the service keeps retrying, never crashes
         code = await run_deployment(missing, duration=1.5)
         assert code == 0
