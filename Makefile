@@ -9,6 +9,7 @@ $(BIN)/shepherd: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[dev]'
+	$(BIN)/shepherd compile
 	touch $@
 
 .PHONY: install run test lint bench clean

@@ -29,6 +29,16 @@ class CameraModel:
     height: int = 480
     rms_px: float = 0.0
 
+    def __post_init__(self) -> None:
+        K = np.ascontiguousarray(self.K, dtype=np.float64)
+        dist = np.zeros(5)
+        given = np.asarray(self.dist, dtype=np.float64).ravel()[:5]
+        dist[:len(given)] = given
+        if K.shape != (3, 3):
+            raise ValueError(f"K must be 3x3, got shape {K.shape}")
+        object.__setattr__(self, "K", K)
+        object.__setattr__(self, "dist", dist)
+
     @classmethod
     def paper(cls) -> CameraModel:
         return cls(np.array(PAPER_K, dtype=np.float64), np.zeros(5), 640, 480)
@@ -81,15 +91,9 @@ class CameraModel:
     def project(self, points_cam: np.ndarray) -> np.ndarray:
         """Project points in the camera optical frame (N, 3) m to pixels (N, 2).
 
-        Written out (pinhole, radial k1 k2 k3, tangential p1 p2) so that tests can check it
-        against ``cv2.projectPoints``.
+        Written out (pinhole with skew, radial k1 k2 k3, tangential p1 p2) in
+        ``services/projection.py`` so that tests can check it against ``cv2.projectPoints``.
         """
-        p = np.asarray(points_cam, dtype=np.float64).reshape(-1, 3)
-        x, y = p[:, 0] / p[:, 2], p[:, 1] / p[:, 2]
-        k1, k2, p1, p2, k3 = self.dist
-        r2 = x * x + y * y
-        radial = 1 + r2 * (k1 + r2 * (k2 + r2 * k3))
-        xd = x * radial + 2 * p1 * x * y + p2 * (r2 + 2 * x * x)
-        yd = y * radial + p1 * (r2 + 2 * y * y) + 2 * p2 * x * y
-        K = self.K
-        return np.column_stack([K[0, 0] * xd + K[0, 1] * yd + K[0, 2], K[1, 1] * yd + K[1, 2]])
+        from services.projection import project_px
+        p = np.ascontiguousarray(np.asarray(points_cam, dtype=np.float64).reshape(-1, 3))
+        return project_px(self.K, self.dist, p)

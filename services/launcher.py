@@ -18,6 +18,8 @@ import sys
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
+import zenoh
+
 from schemas import Keys, ServiceStats
 from schemas.keys import STATS
 from services.bus import Bus, Rejections, open_session
@@ -121,9 +123,10 @@ async def _supervise_process(name: str, dep: Deployment, run: _Run) -> None:
 
 async def run_deployment(dep: Deployment, *, only: list[str] | None = None,
                          duration: float | None = None, processes: bool = False,
-                         child: bool = False) -> int:
+                         child: bool = False, session: zenoh.Session | None = None) -> int:
     """Run the deployment's services until a signal, ``duration`` seconds, or a service asks
-    to exit; returns the exit code."""
+    to exit; returns the exit code. In-process services share one Zenoh session: ``session``
+    (an application embedding the services, left open) or one opened from ``[zenoh]``."""
     names = only or list(dep.services)
     for name in names:
         if name not in dep.services:
@@ -138,7 +141,8 @@ async def run_deployment(dep: Deployment, *, only: list[str] | None = None,
     if as_process and dep.path is None:
         raise ValueError("running services as processes needs a deployment file on disk")
     tasks: list[asyncio.Task[None]] = []
-    with open_session(dep.zenoh) if in_process else contextlib.nullcontext() as session:
+    own = in_process and session is None
+    with open_session(dep.zenoh) if own else contextlib.nullcontext(session) as session:
         for name in in_process:
             tasks.append(asyncio.create_task(_supervise_task(name, dep, session, run), name=name))
         for name in as_process:

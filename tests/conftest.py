@@ -32,6 +32,16 @@ def endpoint() -> str:
     return f"tcp/127.0.0.1:{free_port()}"
 
 
+@pytest.fixture(scope="session", autouse=True)
+def compiled_kernels() -> None:
+    """Compile the numba kernels once, before any test times a service's start (a fresh
+    clone compiles them in about 25 s; later runs load them from the on-disk cache)."""
+    from services.pose_estimator.estimate import warm_up as warm_pose
+    from services.vertex_extractor.extractor import warm_up as warm_vertices
+    warm_vertices()
+    warm_pose()
+
+
 @pytest.fixture
 def router() -> Iterator[str]:
     """A Zenoh router in this process; yields its endpoint."""

@@ -157,6 +157,27 @@ def test_world_pose_composition_and_covariance():
     assert cov.shape == (3, 3) and np.all(np.linalg.eigvalsh(cov) > 0)
 
 
+def test_floor_pose_covariance_matches_a_numerical_jacobian():
+    from services.geometry import floor_pose, make_T
+    from services.pose_estimator.p4p import exp_so3
+    g = Geometry()
+    T_wc = T_floor(0.1, -0.2, math.radians(20)) @ g.T_base_camera()
+    T_cm = inv_T(T_wc) @ T_floor(0.5, 0.1, math.radians(-35)) @ g.T_humanoid_marker()
+    T_mh = inv_T(g.T_humanoid_marker())
+    rng = np.random.default_rng(2)
+    A = rng.normal(size=(6, 6))
+    cov6 = 1e-6 * A @ A.T
+    _, cov = humanoid_floor_pose(T_wc, T_cm, T_mh, cov6)
+    J = np.zeros((3, 6))
+    base = np.array(floor_pose(T_wc @ T_cm @ T_mh))
+    for i in range(6):
+        d = np.zeros(6)
+        d[i] = 1e-7
+        Tp = make_T(exp_so3(d[:3]) @ T_cm[:3, :3], T_cm[:3, 3] + d[3:])
+        J[:, i] = (np.array(floor_pose(T_wc @ Tp @ T_mh)) - base) / 1e-7
+    assert np.allclose(cov, J @ cov6 @ J.T, rtol=1e-5, atol=1e-14)
+
+
 def test_service_publishes_world_pose_and_nulls_without_odometry(router, make_bus, tmp_path):
     g = Geometry()
     dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},

@@ -11,7 +11,7 @@ from services.config import parse_deployment
 from services.launcher import run_deployment
 from services.sim.scenes import random_views
 from services.vertex_extractor.extractor import RhombusExtractor
-from services.vertex_extractor.lines import best_split, moment_rows
+from services.vertex_extractor.lines import best_split
 from tests.helpers.fake_frames import publish_frame, render_marker
 
 
@@ -85,7 +85,7 @@ def test_tracking_uses_the_previous_frame_and_agrees_with_a_cold_search():
 def test_optimal_split_finds_the_kink():
     x = np.arange(40, dtype=float)
     y = np.where(x < 17, 100 - 1.3 * x, 100 - 1.3 * 17 + 1.3 * (x - 17))
-    k = best_split(moment_rows(np.column_stack([x, y])), 3)
+    k = best_split(np.column_stack([x, y]), 3)
     assert k in (17, 18)
 
 

@@ -10,17 +10,18 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from numba import njit
 
 from services.camera import CameraModel
-from services.geometry import floor_pose, inv_T, make_T
+from services.geometry import inv_T
 from services.pose_estimator.p4p import (
+    OK,
     PoseError,
-    _exp_so3,
     covariance_6,
-    ippe,
-    refine,
-    residuals_and_jacobian,
+    map_pose,
+    raise_for,
 )
+from services.projection import normalise_px, project_px, rms_px
 
 
 @dataclass(frozen=True)
@@ -36,12 +37,9 @@ class MarkerPose:
 
 def undistort_px(camera: CameraModel, points_px: np.ndarray) -> np.ndarray:
     """Pixels -> ideal normalised image coordinates (N, 2), removing lens distortion."""
-    pts = np.asarray(points_px, np.float64).reshape(-1, 1, 2)
-    if not np.any(camera.dist):
-        K = camera.K
-        y = (pts[:, 0, 1] - K[1, 2]) / K[1, 1]
-        x = (pts[:, 0, 0] - K[0, 2] - K[0, 1] * y) / K[0, 0]
-        return np.column_stack([x, y])
+    pts = np.ascontiguousarray(points_px, np.float64).reshape(-1, 2)
+    if not camera.dist.any():
+        return normalise_px(camera.K, pts)
     deskewed, K = camera.deskew_px(pts)
     criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
     src = deskewed.reshape(-1, 1, 2)
@@ -69,65 +67,122 @@ def estimate_marker_pose(camera: CameraModel, vertices_px: np.ndarray, marker_po
     the best reprojection wins. ``previous_R`` (the marker's rotation in the previous frame)
     adds a continuity prior: rotation change within ``continuity_sigma_rad``.
     """
-    v = np.asarray(vertices_px, np.float64)
+    v = np.ascontiguousarray(vertices_px, np.float64)
     if v.shape != (4, 2):
         raise PoseError(f"need 4 vertices (4, 2), got shape {v.shape}")
-    if not np.all(np.isfinite(v)):
+    if not np.isfinite(v).all():
         raise PoseError("vertices contain NaN or inf")
+    model = np.ascontiguousarray(marker_points, np.float64)
+    if model.shape != (4, 3):
+        raise PoseError(f"need 4 marker points (4, 3), got shape {model.shape}")
     q = undistort_px(camera, v)
-    cands = ippe(marker_points, q)
-    f = 0.5 * (camera.K[0, 0] + camera.K[1, 1])
-    sigma_n = sigma_px / f
-    chosen = 0
-    if refine_steps:
-        prior = None if up_cam is None else (up_cam, sigma_n / tilt_sigma_rad)
-        ambiguous = len(cands) > 1 and (prior is not None or previous_R is not None) and \
-            cands[1].error <= cands[0].error + ambiguity * sigma_n
-        options = [refine(c.R, c.t, marker_points, q, refine_steps, prior)
-                   for c in (cands if ambiguous else cands[:1])]
-        costs = [o[3] for o in options]
-        if previous_R is not None:
-            for i, o in enumerate(options):
-                turn = math.acos(max(-1.0, min(1.0, (np.trace(o[0].T @ previous_R) - 1) / 2)))
-                costs[i] += (sigma_n * turn / continuity_sigma_rad) ** 2
-        chosen = int(np.argmin(costs))
-        R, t, J, _ = options[chosen]
-    else:
-        R, t = cands[0].R, cands[0].t
-        _, J = residuals_and_jacobian(R, t, marker_points, q)
-    if t[2] <= 0:
-        raise PoseError("the pose puts the marker behind the camera")
-    proj = camera.project(marker_points @ R.T + t)
-    reproj = float(np.sqrt(np.mean(np.sum((proj - v) ** 2, axis=1))))
-    cov = covariance_6(J, sigma_n)
-    return MarkerPose(make_T(R, t), reproj, cov, tuple(make_T(c.R, c.t) for c in cands),
-                      chosen)
+    sigma_n = sigma_px / (0.5 * (camera.K[0, 0] + camera.K[1, 1]))
+    prior_w = 0.0 if up_cam is None else sigma_n / tilt_sigma_rad
+    continuity_w = 0.0 if previous_R is None else sigma_n / continuity_sigma_rad
+    status, T, reproj, cov, chosen, cands = _marker_pose(
+        model, v, q, camera.K, camera.dist, refine_steps,
+        _NO_UP if up_cam is None else np.asarray(up_cam, np.float64), prior_w,
+        _NO_R if previous_R is None else np.asarray(previous_R, np.float64), continuity_w,
+        ambiguity * sigma_n, sigma_n)
+    raise_for(status)
+    return MarkerPose(T, reproj, cov, tuple(cands), chosen)
+
+
+@njit(cache=True)
+def _marker_pose(model: np.ndarray, v: np.ndarray, q: np.ndarray, K: np.ndarray,
+                 dist: np.ndarray, steps: int, up: np.ndarray, prior_w: float,
+                 previous_R: np.ndarray, continuity_w: float, ambiguity_n: float,
+                 sigma_n: float
+                 ) -> tuple[int, np.ndarray, float, np.ndarray, int, np.ndarray]:
+    """map_pose, then T (4x4), reprojection RMS (px), covariance and the candidates (k, 4, 4)."""
+    status, R, t, J, chosen, Rs, ts, count = map_pose(model, q, steps, up, prior_w,
+                                                      previous_R, continuity_w, ambiguity_n)
+    T = np.eye(4)
+    cands = np.zeros((count, 4, 4))
+    if status != OK:
+        return status, T, 0.0, np.zeros((6, 6)), chosen, cands
+    T[:3, :3], T[:3, 3] = R, t
+    for i in range(count):
+        cands[i, :3, :3], cands[i, :3, 3], cands[i, 3, 3] = Rs[i], ts[i], 1.0
+    Xc = np.empty((4, 3))
+    for i in range(4):
+        for k in range(3):
+            Xc[i, k] = R[k, 0] * model[i, 0] + R[k, 1] * model[i, 1] + R[k, 2] * model[i, 2] \
+                + t[k]
+    reproj = rms_px(project_px(K, dist, Xc), v)
+    return OK, T, reproj, covariance_6(J, sigma_n), chosen, cands
+
+
+_NO_UP = np.zeros(3)
+_NO_R = np.eye(3)
 
 
 def humanoid_floor_pose(T_world_camera: np.ndarray, T_camera_marker: np.ndarray,
                         T_marker_humanoid: np.ndarray, cov6: np.ndarray | None = None
                         ) -> tuple[tuple[float, float, float], np.ndarray | None]:
-    """(x m, y m, yaw rad) of the humanoid in the world and its 3x3 covariance (from the 6x6
-    marker-pose covariance by a numerical Jacobian)."""
-    def pose_of(Tcm: np.ndarray) -> np.ndarray:
-        return np.array(floor_pose(T_world_camera @ Tcm @ T_marker_humanoid))
+    """(x m, y m, yaw rad) of the humanoid in the world and its 3x3 covariance, propagated
+    from the 6x6 marker-pose covariance (left rotation increment w, then t) by the
+    analytic Jacobian."""
+    x, y, yaw, J = _floor_pose_jacobian(np.ascontiguousarray(T_world_camera, np.float64),
+                                        np.ascontiguousarray(T_camera_marker, np.float64),
+                                        np.ascontiguousarray(T_marker_humanoid, np.float64))
+    return (x, y, yaw), (None if cov6 is None else J @ cov6 @ J.T)
 
-    base = pose_of(T_camera_marker)
-    if cov6 is None:
-        return (float(base[0]), float(base[1]), float(base[2])), None
+
+@njit(cache=True)
+def _floor_pose_jacobian(T_wc: np.ndarray, T_cm: np.ndarray, T_mh: np.ndarray
+                         ) -> tuple[float, float, float, np.ndarray]:
+    """Floor pose of T_wc T_cm T_mh and its Jacobian (3, 6) for T_cm <- (exp(w) R, t + dt).
+
+    Position p = R_wc (R_cm t_mh + t_cm) + t_wc: dp/dw = -R_wc [a]x with a = R_cm t_mh,
+    dp/dt = R_wc. Heading h = R_wc R_cm R_mh e_x: dh/dw = -R_wc [b]x with b = R_cm R_mh e_x,
+    and yaw = atan2(h_y, h_x).
+    """
+    a, b, p, h = np.zeros(3), np.zeros(3), np.zeros(3), np.zeros(3)
+    for i in range(3):
+        for k in range(3):
+            a[i] += T_cm[i, k] * T_mh[k, 3]
+            b[i] += T_cm[i, k] * T_mh[k, 0]
+    for i in range(3):
+        p[i] = T_wc[i, 3]
+        for k in range(3):
+            p[i] += T_wc[i, k] * (a[k] + T_cm[k, 3])
+            h[i] += T_wc[i, k] * b[k]
     J = np.zeros((3, 6))
-    eps = 1e-6
-    R, t = T_camera_marker[:3, :3], T_camera_marker[:3, 3]
-    for i in range(6):
-        d = np.zeros(6)
-        d[i] = eps
-        Tp = make_T(_exp_so3(d[:3]) @ R, t + d[3:])
-        diff = pose_of(Tp) - base
-        diff[2] = (diff[2] + math.pi) % (2 * math.pi) - math.pi
-        J[:, i] = diff / eps
-    return (float(base[0]), float(base[1]), float(base[2])), J @ cov6 @ J.T
+    inv_h2 = 1.0 / (h[0] * h[0] + h[1] * h[1])
+    for col in range(3):  # column col of -R_wc [v]x is R_wc (e_col x v)
+        e = np.zeros(3)
+        e[col] = 1.0
+        da, db = np.cross(e, a), np.cross(e, b)
+        dp, dh = np.zeros(3), np.zeros(3)
+        for i in range(3):
+            for k in range(3):
+                dp[i] += T_wc[i, k] * da[k]
+                dh[i] += T_wc[i, k] * db[k]
+        J[0, col], J[1, col] = dp[0], dp[1]
+        J[0, 3 + col], J[1, 3 + col] = T_wc[0, col], T_wc[1, col]
+        J[2, col] = (h[0] * dh[1] - h[1] * dh[0]) * inv_h2
+    return p[0], p[1], math.atan2(h[1], h[0]), J
 
 
 def up_in_camera(T_base_camera: np.ndarray) -> np.ndarray:
     """The world's up (= base z, the base stands on the floor) in the camera frame."""
     return inv_T(T_base_camera)[:3, :3] @ np.array([0.0, 0.0, 1.0])
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's on-disk cache) the pose kernels: a view with and
+    without distortion, with both priors, and the world pose."""
+    from services.geometry import T_floor
+    model = np.array([[-0.03, 0.0, 0.0], [0.0, 0.04, 0.0], [0.03, 0.0, 0.0], [0.0, -0.04, 0.0]])
+    T = np.eye(4)
+    T[:3, :3] = [[0.9, 0.0, 0.43589], [0.0, 1.0, 0.0], [-0.43589, 0.0, 0.9]]
+    T[:3, 3] = (0.02, -0.01, 0.4)
+    for dist in (np.zeros(5), np.array([-0.1, 0.01, 0.0, 0.0, 0.0])):
+        camera = CameraModel(np.array([[750.0, 2.0, 320.0], [0.0, 750.0, 240.0],
+                                       [0.0, 0.0, 1.0]]), dist)
+        v = camera.project(model @ T[:3, :3].T + T[:3, 3])
+        for up, previous in ((None, None), (np.array([0.0, -1.0, 0.0]), T[:3, :3])):
+            estimate_marker_pose(camera, v, model, up_cam=up, previous_R=previous)
+        estimate_marker_pose(camera, v, model, refine_steps=0)
+    humanoid_floor_pose(T_floor(0.0, 0.0, 0.0), T, np.eye(4), np.eye(6))

@@ -9,6 +9,10 @@ explain it, each with its least-squares translation. Both candidates are returne
 chooses with a prior (the humanoid stands upright). An optional Gauss-Newton refinement on the
 reprojection error and a 6x6 covariance from its Jacobian complete the estimate.
 
+The kernels are compiled with numba (scalar code on 3x3 matrices: numpy's per-call overhead
+would be most of the time otherwise); the Python functions check their input and raise
+``PoseError`` with the reason.
+
 Limits: the points must be coplanar (z = 0 in the model frame) and not collinear; when the
 projection is nearly affine (a small or distant marker) the two candidates explain the image
 almost equally well, and only a prior can tell them apart.
@@ -20,6 +24,7 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 
 class PoseError(ValueError):
@@ -35,88 +40,239 @@ class PoseCandidate:
     error: float
 
 
-def _square_to_quad(x: list[float], y: list[float]) -> np.ndarray:
-    """Homography taking the unit square (0,0), (1,0), (1,1), (0,1) to a quad (Heckbert)."""
+OK, NOT_FINITE, NOT_PLANAR, DEGENERATE_MODEL, DEGENERATE_IMAGE, PROJECTS_TO_LINE, \
+    NONE_IN_FRONT, BEHIND = range(8)
+
+MESSAGES = {
+    NOT_FINITE: "non-finite coordinates (NaN or inf)",
+    NOT_PLANAR: "model points must lie on the plane z = 0",
+    DEGENERATE_MODEL: "degenerate model points: repeated or three collinear (no homography)",
+    DEGENERATE_IMAGE: "degenerate points: repeated or three collinear (no homography)",
+    PROJECTS_TO_LINE: "degenerate image: the marker projects to a line",
+    NONE_IN_FRONT: "no pose puts the marker in front of the camera",
+    BEHIND: "the pose puts the marker behind the camera",
+}
+
+
+def raise_for(status: int) -> None:
+    """Raise PoseError for a kernel status other than OK."""
+    if status != OK:
+        raise PoseError(MESSAGES[status])
+
+
+# -- homography ------------------------------------------------------------------------------
+
+@njit(cache=True)
+def _square_to_quad(x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Homography taking the unit square (0,0), (1,0), (1,1), (0,1) to a quad (Heckbert);
+    all zeros when degenerate."""
+    H = np.zeros((3, 3))
     sx = x[0] - x[1] + x[2] - x[3]
     sy = y[0] - y[1] + y[2] - y[3]
     dx1, dx2, dy1, dy2 = x[1] - x[2], x[3] - x[2], y[1] - y[2], y[3] - y[2]
     den = dx1 * dy2 - dx2 * dy1
     if abs(den) < 1e-15:
-        raise PoseError("degenerate points: repeated or three collinear (no homography)")
+        return H
     g = (sx * dy2 - dx2 * sy) / den
     h = (dx1 * sy - sx * dy1) / den
-    return np.array([[x[1] - x[0] + g * x[1], x[3] - x[0] + h * x[3], x[0]],
-                     [y[1] - y[0] + g * y[1], y[3] - y[0] + h * y[3], y[0]],
-                     [g, h, 1.0]])
+    H[0, 0], H[0, 1], H[0, 2] = x[1] - x[0] + g * x[1], x[3] - x[0] + h * x[3], x[0]
+    H[1, 0], H[1, 1], H[1, 2] = y[1] - y[0] + g * y[1], y[3] - y[0] + h * y[3], y[0]
+    H[2, 0], H[2, 1], H[2, 2] = g, h, 1.0
+    return H
 
 
-def _check_quad(x: list[float], y: list[float], scale: float) -> None:
-    """Raise PoseError when any three of the four points are (nearly) collinear."""
-    for i, j, k in ((0, 1, 2), (1, 2, 3), (2, 3, 0), (3, 0, 1)):
+@njit(cache=True)
+def _collinear(x: np.ndarray, y: np.ndarray) -> bool:
+    """Are any three of the four points (nearly) collinear?"""
+    scale = 0.0
+    for i in range(4):
+        scale = max(scale, abs(x[i]), abs(y[i]))
+    scale = scale if scale > 0 else 1.0
+    for i in range(4):
+        j, k = (i + 1) % 4, (i + 2) % 4
         area = (x[j] - x[i]) * (y[k] - y[i]) - (x[k] - x[i]) * (y[j] - y[i])
         if abs(area) < 1e-9 * scale * scale:
-            raise PoseError("degenerate points: repeated or three collinear (no homography)")
+            return True
+    return False
 
 
-def homography_4pt(model_xy: np.ndarray, image_xy: np.ndarray) -> np.ndarray:
-    """Exact homography (3x3, H[2,2] = 1) mapping 4 model points to 4 image points, in
-    closed form through the unit square. Raises PoseError for repeated or collinear points."""
-    mx, my = model_xy[:, 0].tolist(), model_xy[:, 1].tolist()
-    ix, iy = image_xy[:, 0].tolist(), image_xy[:, 1].tolist()
-    _check_quad(mx, my, max(map(abs, mx + my)) or 1.0)
-    _check_quad(ix, iy, max(map(abs, ix + iy)) or 1.0)
-    H = _square_to_quad(ix, iy) @ np.linalg.inv(_square_to_quad(mx, my))
-    return H / H[2, 2]
+@njit(cache=True)
+def _inv3(M: np.ndarray) -> np.ndarray:
+    """Inverse of a 3x3 matrix by its adjugate."""
+    a, b, c = M[0, 0], M[0, 1], M[0, 2]
+    d, e, f = M[1, 0], M[1, 1], M[1, 2]
+    g, h, i = M[2, 0], M[2, 1], M[2, 2]
+    A, B, C = e * i - f * h, -(d * i - f * g), d * h - e * g
+    det = a * A + b * B + c * C
+    out = np.empty((3, 3))
+    out[0, 0], out[1, 0], out[2, 0] = A / det, B / det, C / det
+    out[0, 1], out[1, 1], out[2, 1] = -(b * i - c * h) / det, (a * i - c * g) / det, \
+        -(a * h - b * g) / det
+    out[0, 2], out[1, 2], out[2, 2] = (b * f - c * e) / det, -(a * f - c * d) / det, \
+        (a * e - b * d) / det
+    return out
 
 
-def _ippe_rotations(v: np.ndarray, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+@njit(cache=True)
+def homography_4pt(model_xy: np.ndarray, image_xy: np.ndarray) -> tuple[int, np.ndarray]:
+    """(status, H): exact homography (H[2,2] = 1) mapping 4 model points to 4 image points,
+    in closed form through the unit square."""
+    mx, my = model_xy[:, 0].copy(), model_xy[:, 1].copy()
+    ix, iy = image_xy[:, 0].copy(), image_xy[:, 1].copy()
+    if _collinear(mx, my):
+        return DEGENERATE_MODEL, np.zeros((3, 3))
+    if _collinear(ix, iy):
+        return DEGENERATE_IMAGE, np.zeros((3, 3))
+    H = _square_to_quad(ix, iy) @ _inv3(_square_to_quad(mx, my))
+    return OK, H / H[2, 2]
+
+
+# -- IPPE ------------------------------------------------------------------------------------
+
+@njit(cache=True)
+def _ippe_rotations(v0: float, v1: float, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The two rotations of IPPE_dec from the image of the origin v and the Jacobian J."""
-    t = math.hypot(v[0], v[1])
-    if t < 1e-12:
-        Rv = np.eye(3)
-    else:
+    t = math.hypot(v0, v1)
+    Rv = np.eye(3)
+    if t >= 1e-12:
         s = math.sqrt(t * t + 1.0)
         costh, sinth = 1.0 / s, math.sqrt(1.0 - 1.0 / (s * s))
-        Kc = np.array([[0.0, 0.0, v[0]], [0.0, 0.0, v[1]], [-v[0], -v[1], 0.0]]) / t
-        Rv = np.eye(3) + sinth * Kc + (1.0 - costh) * (Kc @ Kc)
-    B = np.array([[1.0, 0.0, -v[0]], [0.0, 1.0, -v[1]]]) @ Rv[:, :2]
-    A = np.linalg.solve(B, J)
-    a, b, c, d = A[0, 0], A[0, 1], A[1, 0], A[1, 1]
+        Kc = np.array([[0.0, 0.0, v0], [0.0, 0.0, v1], [-v0, -v1, 0.0]]) / t
+        Rv = Rv + sinth * Kc + (1.0 - costh) * (Kc @ Kc)
+    # B = [[1, 0, -v0], [0, 1, -v1]] Rv[:, :2];  A = B^-1 J
+    b00, b01 = Rv[0, 0] - v0 * Rv[2, 0], Rv[0, 1] - v0 * Rv[2, 1]
+    b10, b11 = Rv[1, 0] - v1 * Rv[2, 0], Rv[1, 1] - v1 * Rv[2, 1]
+    det = b00 * b11 - b01 * b10
+    a = (b11 * J[0, 0] - b01 * J[1, 0]) / det
+    b = (b11 * J[0, 1] - b01 * J[1, 1]) / det
+    c = (-b10 * J[0, 0] + b00 * J[1, 0]) / det
+    d = (-b10 * J[0, 1] + b00 * J[1, 1]) / det
     gamma = math.sqrt(0.5 * (a * a + b * b + c * c + d * d + math.sqrt(
         (a * a - b * b + c * c - d * d) ** 2 + 4 * (a * b + c * d) ** 2)))
-    R22 = A / gamma
-    h = np.eye(2) - R22.T @ R22
-    bvec = np.array([math.sqrt(max(h[0, 0], 0.0)), math.sqrt(max(h[1, 1], 0.0))])
-    if h[0, 1] < 0:
-        bvec[1] = -bvec[1]
-    r00, r01, r10, r11 = R22[0, 0], R22[0, 1], R22[1, 0], R22[1, 1]
-    b0, b1 = bvec
+    r00, r01, r10, r11 = a / gamma, b / gamma, c / gamma, d / gamma
+    h00 = 1.0 - r00 * r00 - r10 * r10
+    h01 = -(r00 * r01 + r10 * r11)
+    h11 = 1.0 - r01 * r01 - r11 * r11
+    b0, b1 = math.sqrt(max(h00, 0.0)), math.sqrt(max(h11, 0.0))
+    if h01 < 0:
+        b1 = -b1
     c0, c1, a2 = r10 * b1 - b0 * r11, b0 * r01 - r00 * b1, r00 * r11 - r10 * r01
     M1 = np.array([[r00, r01, c0], [r10, r11, c1], [b0, b1, a2]])
     M2 = np.array([[r00, r01, -c0], [r10, r11, -c1], [-b0, -b1, a2]])
     return Rv @ M1, Rv @ M2
 
 
-def _translation(R: np.ndarray, model_xy: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Least-squares translation for rotation R (model points on z = 0, normalised q)."""
-    P = model_xy @ R[:, :2].T  # (N, 3) rotated model points
-    n = len(q)
-    A = np.zeros((2 * n, 3))
-    A[0::2, 0], A[0::2, 2] = 1.0, -q[:, 0]
-    A[1::2, 1], A[1::2, 2] = 1.0, -q[:, 1]
-    b = np.empty(2 * n)
-    b[0::2] = q[:, 0] * P[:, 2] - P[:, 0]
-    b[1::2] = q[:, 1] * P[:, 2] - P[:, 1]
-    return np.linalg.solve(A.T @ A, A.T @ b)
+@njit(cache=True)
+def _translation(R: np.ndarray, mxy: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Least-squares translation for rotation R (model points (x, y, 0), normalised q)."""
+    n = q.shape[0]
+    A = np.zeros((3, 3))  # normal equations of rows [1, 0, -qx] and [0, 1, -qy]
+    rhs = np.zeros(3)
+    for i in range(n):
+        px = R[0, 0] * mxy[i, 0] + R[0, 1] * mxy[i, 1]
+        py = R[1, 0] * mxy[i, 0] + R[1, 1] * mxy[i, 1]
+        pz = R[2, 0] * mxy[i, 0] + R[2, 1] * mxy[i, 1]
+        qx, qy = q[i, 0], q[i, 1]
+        bx, by = qx * pz - px, qy * pz - py
+        A[0, 2] -= qx
+        A[1, 2] -= qy
+        A[2, 2] += qx * qx + qy * qy
+        rhs[0] += bx
+        rhs[1] += by
+        rhs[2] -= qx * bx + qy * by
+    A[0, 0] = A[1, 1] = n
+    A[2, 0], A[2, 1] = A[0, 2], A[1, 2]
+    return _inv3(A) @ rhs
 
 
+@njit(cache=True)
 def reprojection_rms(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray) -> float:
-    """RMS distance (normalised image units) between projected model points and q."""
-    Xc = model @ R.T + t
-    if np.any(Xc[:, 2] <= 0):
-        return math.inf
-    d = Xc[:, :2] / Xc[:, 2:3] - q
-    return math.sqrt(float((d * d).sum()) / len(q))
+    """RMS distance (normalised image units) between projected model points and q; inf if a
+    point is behind the camera."""
+    s = 0.0
+    n = q.shape[0]
+    for i in range(n):
+        X = R[0, 0] * model[i, 0] + R[0, 1] * model[i, 1] + R[0, 2] * model[i, 2] + t[0]
+        Y = R[1, 0] * model[i, 0] + R[1, 1] * model[i, 1] + R[1, 2] * model[i, 2] + t[1]
+        Z = R[2, 0] * model[i, 0] + R[2, 1] * model[i, 1] + R[2, 2] * model[i, 2] + t[2]
+        if Z <= 0:
+            return np.inf
+        s += (X / Z - q[i, 0]) ** 2 + (Y / Z - q[i, 1]) ** 2
+    return math.sqrt(s / n)
+
+
+@njit(cache=True)
+def check_inputs(model: np.ndarray, q: np.ndarray) -> int:
+    """NOT_FINITE, NOT_PLANAR or OK."""
+    for i in range(q.shape[0]):
+        if not (math.isfinite(q[i, 0]) and math.isfinite(q[i, 1])):
+            return NOT_FINITE
+        for k in range(3):
+            if not math.isfinite(model[i, k]):
+                return NOT_FINITE
+        if abs(model[i, 2]) > 1e-9:
+            return NOT_PLANAR
+    return OK
+
+
+@njit(cache=True)
+def ippe_from_homography(H: np.ndarray, model: np.ndarray, q: np.ndarray
+                         ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int]:
+    """Both IPPE candidates from the homography H of the centred model (x, y) to q.
+
+    Returns (status, Rs (2, 3, 3), ts (2, 3), errors (2,), count), best reprojection first;
+    a candidate with points behind the camera is dropped (count 1), none left: NONE_IN_FRONT.
+    """
+    n = q.shape[0]
+    cx, cy = model[:, 0].mean(), model[:, 1].mean()
+    mxy = np.empty((n, 2))
+    for i in range(n):
+        mxy[i, 0], mxy[i, 1] = model[i, 0] - cx, model[i, 1] - cy
+    J = np.empty((2, 2))
+    J[0, 0] = H[0, 0] - H[2, 0] * H[0, 2]
+    J[0, 1] = H[0, 1] - H[2, 1] * H[0, 2]
+    J[1, 0] = H[1, 0] - H[2, 0] * H[1, 2]
+    J[1, 1] = H[1, 1] - H[2, 1] * H[1, 2]
+    Rs = np.zeros((2, 3, 3))
+    ts = np.zeros((2, 3))
+    errs = np.full(2, np.inf)
+    if abs(J[0, 0] * J[1, 1] - J[0, 1] * J[1, 0]) < 1e-12:
+        return PROJECTS_TO_LINE, Rs, ts, errs, 0
+    R1, R2 = _ippe_rotations(H[0, 2], H[1, 2], J)
+    count = 0
+    for R in (R1, R2):
+        t = _translation(R, mxy, q)
+        t[0] -= R[0, 0] * cx + R[0, 1] * cy
+        t[1] -= R[1, 0] * cx + R[1, 1] * cy
+        t[2] -= R[2, 0] * cx + R[2, 1] * cy
+        err = reprojection_rms(R, t, model, q)
+        if math.isfinite(err):
+            Rs[count], ts[count], errs[count] = R, t, err
+            count += 1
+    if count == 0:
+        return NONE_IN_FRONT, Rs, ts, errs, 0
+    if count == 2 and errs[1] < errs[0]:
+        R0, t0, e0 = Rs[0].copy(), ts[0].copy(), errs[0]
+        Rs[0], ts[0], errs[0] = Rs[1], ts[1], errs[1]
+        Rs[1], ts[1], errs[1] = R0, t0, e0
+    return OK, Rs, ts, errs, count
+
+
+@njit(cache=True)
+def ippe4(model: np.ndarray, q: np.ndarray
+          ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int]:
+    """IPPE for four points: checks, the closed-form homography, both candidates."""
+    status = check_inputs(model, q)
+    if status != OK:
+        return status, np.zeros((2, 3, 3)), np.zeros((2, 3)), np.full(2, np.inf), 0
+    cx, cy = model[:, 0].mean(), model[:, 1].mean()
+    mxy = np.empty((4, 2))
+    for i in range(4):
+        mxy[i, 0], mxy[i, 1] = model[i, 0] - cx, model[i, 1] - cy
+    status, H = homography_4pt(mxy, q)
+    if status != OK:
+        return status, np.zeros((2, 3, 3)), np.zeros((2, 3)), np.full(2, np.inf), 0
+    return ippe_from_homography(H, model, q)
 
 
 def ippe(model: np.ndarray, q: np.ndarray) -> list[PoseCandidate]:
@@ -125,127 +281,166 @@ def ippe(model: np.ndarray, q: np.ndarray) -> list[PoseCandidate]:
     Returns the candidates sorted by reprojection error (best first); a candidate with
     points behind the camera is dropped. Raises PoseError on degenerate input.
     """
-    model = np.asarray(model, np.float64)
-    q = np.asarray(q, np.float64)
-    if model.shape != (len(q), 3) or len(q) < 4 or q.shape[1] != 2:
+    model = np.ascontiguousarray(model, np.float64)
+    q = np.ascontiguousarray(q, np.float64)
+    if model.ndim != 2 or q.ndim != 2 or model.shape != (len(q), 3) or len(q) < 4 or \
+            q.shape[1] != 2:
         raise PoseError(f"need N >= 4 model (N, 3) and image (N, 2) points, got {model.shape} "
                         f"and {q.shape}")
-    if not (np.all(np.isfinite(model)) and np.all(np.isfinite(q))):
-        raise PoseError("non-finite coordinates (NaN or inf)")
-    if np.any(np.abs(model[:, 2]) > 1e-9):
-        raise PoseError("model points must lie on the plane z = 0")
-    centre = model[:, :2].mean(0)
-    mxy = model[:, :2] - centre
     if len(q) == 4:
-        H = homography_4pt(mxy, q)
+        status, Rs, ts, errs, count = ippe4(model, q)
     else:
         import cv2
-        H, _ = cv2.findHomography(mxy, q, 0)
+        raise_for(check_inputs(model, q))
+        H, _ = cv2.findHomography(model[:, :2] - model[:, :2].mean(0), q, 0)
         if H is None:
             raise PoseError("degenerate points: no homography")
-        H = H / H[2, 2]
-    J = np.array([[H[0, 0] - H[2, 0] * H[0, 2], H[0, 1] - H[2, 1] * H[0, 2]],
-                  [H[1, 0] - H[2, 0] * H[1, 2], H[1, 1] - H[2, 1] * H[1, 2]]])
-    if abs(np.linalg.det(J)) < 1e-12:
-        raise PoseError("degenerate image: the marker projects to a line")
-    out = []
-    for R in _ippe_rotations(H[:2, 2], J):
-        t = _translation(R, mxy, q)
-        t_model = t - R[:, :2] @ centre
-        err = reprojection_rms(R, t_model, model, q)
-        if math.isfinite(err):
-            out.append(PoseCandidate(R, t_model, err))
-    if not out:
-        raise PoseError("no pose puts the marker in front of the camera")
-    return sorted(out, key=lambda c: c.error)
+        status, Rs, ts, errs, count = ippe_from_homography(H / H[2, 2], model, q)
+    raise_for(status)
+    return [PoseCandidate(Rs[i], ts[i], float(errs[i])) for i in range(count)]
 
 
-def _skew(w: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+# -- refinement ------------------------------------------------------------------------------
 
-
-def _exp_so3(w: np.ndarray) -> np.ndarray:
-    th = float(np.linalg.norm(w))
-    K = _skew(w)
+@njit(cache=True)
+def exp_so3(w: np.ndarray) -> np.ndarray:
+    """Rotation matrix of the rotation vector w (rad)."""
+    th = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
     if th < 1e-12:
         return np.eye(3) + K
     return np.eye(3) + math.sin(th) / th * K + (1 - math.cos(th)) / (th * th) * (K @ K)
 
 
+@njit(cache=True)
 def residuals_and_jacobian(R: np.ndarray, t: np.ndarray, model: np.ndarray,
                            q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Residuals (2N,) in normalised units and their Jacobian (2N, 6) with respect to a
     left rotation increment w (R <- exp(w) R) and t."""
-    P = model @ R.T
-    Xc = P + t
-    X, Y, Z = Xc[:, 0], Xc[:, 1], Xc[:, 2]
-    iz = 1.0 / Z
-    r = (Xc[:, :2] * iz[:, None] - q).reshape(-1)
-    n = len(q)
+    n = q.shape[0]
+    r = np.empty(2 * n)
     J = np.zeros((2 * n, 6))
-    ax, ay = -X * iz * iz, -Y * iz * iz  # d(X/Z)/dZ, d(Y/Z)/dZ
-    px, py, pz = P[:, 0], P[:, 1], P[:, 2]
-    # d Xc / d w = -[P]x  =>  rows (0, pz, -py), (-pz, 0, px), (py, -px, 0)
-    J[0::2, 0] = ax * py
-    J[0::2, 1] = iz * pz + ax * -px
-    J[0::2, 2] = iz * -py
-    J[1::2, 0] = iz * -pz + ay * py
-    J[1::2, 1] = ay * -px
-    J[1::2, 2] = iz * px
-    J[0::2, 3], J[0::2, 5] = iz, ax
-    J[1::2, 4], J[1::2, 5] = iz, ay
+    for i in range(n):
+        px = R[0, 0] * model[i, 0] + R[0, 1] * model[i, 1] + R[0, 2] * model[i, 2]
+        py = R[1, 0] * model[i, 0] + R[1, 1] * model[i, 1] + R[1, 2] * model[i, 2]
+        pz = R[2, 0] * model[i, 0] + R[2, 1] * model[i, 1] + R[2, 2] * model[i, 2]
+        X, Y, Z = px + t[0], py + t[1], pz + t[2]
+        iz = 1.0 / Z
+        r[2 * i] = X * iz - q[i, 0]
+        r[2 * i + 1] = Y * iz - q[i, 1]
+        ax, ay = -X * iz * iz, -Y * iz * iz  # d(X/Z)/dZ, d(Y/Z)/dZ
+        # d Xc / d w = -[P]x  =>  rows (0, pz, -py), (-pz, 0, px), (py, -px, 0)
+        J[2 * i, 0] = ax * py
+        J[2 * i, 1] = iz * pz - ax * px
+        J[2 * i, 2] = -iz * py
+        J[2 * i + 1, 0] = -iz * pz + ay * py
+        J[2 * i + 1, 1] = -ay * px
+        J[2 * i + 1, 2] = iz * px
+        J[2 * i, 3], J[2 * i, 5] = iz, ax
+        J[2 * i + 1, 4], J[2 * i + 1, 5] = iz, ay
     return r, J
 
 
-def refine(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray,
-           iterations: int = 5, prior: tuple[np.ndarray, float] | None = None
+@njit(cache=True)
+def _posterior_cost(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray,
+                    up: np.ndarray, prior_w: float) -> float:
+    rms = reprojection_rms(R, t, model, q)
+    if not math.isfinite(rms):
+        return np.inf
+    tilt = R[0, 2] * up[0] + R[1, 2] * up[1] + R[2, 2] * up[2]
+    return rms * rms * q.shape[0] + (prior_w * tilt) ** 2
+
+
+@njit(cache=True)
+def refine(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray, iterations: int,
+           up: np.ndarray, prior_w: float
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
-    """Gauss-Newton on the reprojection error, optionally with an upright prior.
+    """Gauss-Newton on the reprojection error, with an upright prior when ``prior_w > 0``.
 
-    ``prior = (up, weight)`` adds the residual ``weight * (n . up)``, n the marker normal
-    (R's third column) and ``up`` the world's up in the camera frame: with ``weight =
-    sigma_image / sigma_tilt`` the cost is the negative log posterior (times sigma_image²)
-    of a marker whose normal is level within sigma_tilt. Returns R, t, the reprojection
-    Jacobian (2N, 6) and the final cost (sum of squared residuals, normalised units).
+    The prior adds the residual ``prior_w * (n . up)``, n the marker normal (R's third
+    column) and ``up`` the world's up in the camera frame: with ``prior_w = sigma_image /
+    sigma_tilt`` the cost is the negative log posterior (times sigma_image²) of a marker
+    whose normal is level within sigma_tilt. Returns R, t, the reprojection Jacobian
+    (2N, 6) and the final cost (sum of squared residuals, normalised units).
     """
-    def cost_of(R_: np.ndarray, t_: np.ndarray) -> float:
-        Xc = model @ R_.T + t_
-        if np.any(Xc[:, 2] <= 0):
-            return math.inf
-        d = Xc[:, :2] / Xc[:, 2:3] - q
-        c = float((d * d).sum())
-        if prior is not None:
-            c += (prior[1] * float(R_[:, 2] @ prior[0])) ** 2
-        return c
-
-    cost = cost_of(R, t)
+    cost = _posterior_cost(R, t, model, q, up, prior_w)
     for _ in range(iterations):
         r, J = residuals_and_jacobian(R, t, model, q)
-        if prior is not None:
-            up, w = prior
-            n = R[:, 2]
-            r = np.append(r, w * float(n @ up))
-            # d(n . up)/dw = n x up for a left increment
-            J = np.vstack([J, [w * (n[1] * up[2] - n[2] * up[1]),
-                               w * (n[2] * up[0] - n[0] * up[2]),
-                               w * (n[0] * up[1] - n[1] * up[0]), 0.0, 0.0, 0.0]])
         JTJ = J.T @ J
-        try:
-            delta = -np.linalg.solve(JTJ + 1e-12 * np.eye(6), J.T @ r)
-        except np.linalg.LinAlgError:
+        g = J.T @ r
+        if prior_w > 0:
+            tilt = R[0, 2] * up[0] + R[1, 2] * up[1] + R[2, 2] * up[2]
+            # d(n . up)/dw = n x up for a left increment
+            row = np.zeros(6)
+            row[0] = prior_w * (R[1, 2] * up[2] - R[2, 2] * up[1])
+            row[1] = prior_w * (R[2, 2] * up[0] - R[0, 2] * up[2])
+            row[2] = prior_w * (R[0, 2] * up[1] - R[1, 2] * up[0])
+            JTJ += np.outer(row, row)
+            g += row * (prior_w * tilt)
+        for k in range(6):
+            JTJ[k, k] += 1e-12
+        delta = -np.linalg.solve(JTJ, g)
+        if not np.all(np.isfinite(delta)):
             break
-        R_new, t_new = _exp_so3(delta[:3]) @ R, t + delta[3:]
-        new_cost = cost_of(R_new, t_new)
+        R_new = exp_so3(delta[:3]) @ R
+        t_new = t + delta[3:]
+        new_cost = _posterior_cost(R_new, t_new, model, q, up, prior_w)
         if new_cost > cost:
             break
         converged = cost - new_cost <= 1e-9 * cost
         R, t, cost = R_new, t_new, new_cost
-        if converged or float(np.linalg.norm(delta)) < 1e-12:
+        if converged or math.sqrt((delta * delta).sum()) < 1e-12:
             break
     _, J = residuals_and_jacobian(R, t, model, q)
     return R, t, J, cost
 
 
+@njit(cache=True)
 def covariance_6(J: np.ndarray, sigma_normalised: float) -> np.ndarray:
     """6x6 covariance of (w rad, t m) from the Jacobian and the image noise (normalised)."""
     return sigma_normalised ** 2 * np.linalg.pinv(J.T @ J)
+
+
+@njit(cache=True)
+def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
+    """Angle (rad) of the rotation between Ra and Rb."""
+    tr = 0.0
+    for i in range(3):
+        for k in range(3):
+            tr += Ra[k, i] * Rb[k, i]
+    return math.acos(max(-1.0, min(1.0, 0.5 * (tr - 1.0))))
+
+
+@njit(cache=True)
+def map_pose(model: np.ndarray, q: np.ndarray, steps: int, up: np.ndarray, prior_w: float,
+             previous_R: np.ndarray, continuity_w: float, ambiguity_n: float
+             ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, np.ndarray,
+                        int]:
+    """IPPE, then the maximum a posteriori candidate, refined.
+
+    ``prior_w > 0`` enables the upright prior (see ``refine``); ``continuity_w > 0`` adds
+    ``(continuity_w * angle to previous_R)²`` to each candidate's cost. Both candidates are
+    refined only when a prior is on and the second's reprojection error is within
+    ``ambiguity_n`` (normalised units) of the first's. Returns (status, R, t, J, chosen,
+    candidate Rs, candidate ts, candidate count).
+    """
+    status, Rs, ts, errs, count = ippe4(model, q)
+    if status != OK:
+        return status, np.eye(3), np.zeros(3), np.zeros((8, 6)), 0, Rs, ts, 0
+    if steps == 0:
+        _, J = residuals_and_jacobian(Rs[0], ts[0], model, q)
+        return OK, Rs[0].copy(), ts[0].copy(), J, 0, Rs, ts, count
+    ambiguous = count > 1 and (prior_w > 0 or continuity_w > 0) and \
+        errs[1] <= errs[0] + ambiguity_n
+    best = np.inf
+    chosen = 0
+    R_best, t_best, J_best = Rs[0].copy(), ts[0].copy(), np.zeros((2 * q.shape[0], 6))
+    for i in range(2 if ambiguous else 1):
+        R, t, J, cost = refine(Rs[i].copy(), ts[i].copy(), model, q, steps, up, prior_w)
+        if continuity_w > 0:
+            cost += (continuity_w * rotation_angle(R, previous_R)) ** 2
+        if i == 0 or cost < best:
+            best, chosen, R_best, t_best, J_best = cost, i, R, t, J
+    if t_best[2] <= 0:
+        return BEHIND, R_best, t_best, J_best, chosen, Rs, ts, count
+    return OK, R_best, t_best, J_best, chosen, Rs, ts, count

@@ -17,6 +17,7 @@ from services.pose_estimator.estimate import (
     estimate_marker_pose,
     humanoid_floor_pose,
     up_in_camera,
+    warm_up,
 )
 from services.pose_estimator.p4p import PoseError
 
@@ -108,6 +109,7 @@ async def main(ctx, config: Settings) -> None:
     vertices = bus.subscribe(VERTICES, MarkerVertices, latest=True)
     odom = bus.subscribe(ODOM, CameraPose, latest=False, queue=64)
     updates = bus.subscribe(INTRINSICS, CameraIntrinsics, latest=True)
+    await asyncio.to_thread(warm_up)  # compiled kernels ready before the first vertices
     camera = await _intrinsics(ctx, config)
     log.info("intrinsics %dx%d fx=%.1f fy=%.1f", camera.width, camera.height, camera.K[0, 0],
              camera.K[1, 1])

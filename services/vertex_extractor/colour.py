@@ -1,4 +1,4 @@
-"""The per-pixel colour test for the magenta marker (BGR images).
+"""The per-pixel colour test for the magenta marker (BGR images), compiled with numba.
 
 ``score = (R + B) / 2 - G`` is linear in how much of a pixel the marker covers, so it gives the
 sub-pixel edge position; the interior test adds chroma ratios so that pink, red, blue and
@@ -9,8 +9,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
+from numba import njit
 
 
 @dataclass(frozen=True)
@@ -23,20 +23,48 @@ class ColourModel:
     balance: float = 0.2
     min_level: int = 50
 
-    def mask(self, bgr: np.ndarray) -> np.ndarray:
-        """Interior mask of an H x W x 3 uint8 BGR image: uint8, 255 inside, 0 outside."""
-        b, g, r = cv2.split(bgr)
-        lo, hi = cv2.min(r, b), cv2.max(r, b)
-        m = cv2.compare(lo, self.min_level, cv2.CMP_GT)
-        half_sum = cv2.addWeighted(r, 0.5, b, 0.5, 0.0)
-        m &= cv2.compare(cv2.subtract(half_sum, g), self.min_score, cv2.CMP_GT)
-        m &= cv2.compare(g, cv2.multiply(lo, self.green_ratio, dtype=cv2.CV_8U), cv2.CMP_LT)
-        m &= cv2.compare(cv2.absdiff(r, b), cv2.multiply(hi, self.balance, dtype=cv2.CV_8U),
-                         cv2.CMP_LT)
-        return m
+    @property
+    def args(self) -> tuple[float, float, float, float]:
+        """The thresholds in the order the compiled kernels take them."""
+        return (float(self.min_score), float(self.green_ratio), float(self.balance),
+                float(self.min_level))
 
-    @staticmethod
-    def score(bgr: np.ndarray) -> np.ndarray:
-        """(R + B) / 2 - G as float32 (linear in the marker's coverage of a pixel)."""
-        f = bgr.astype(np.float32)
-        return 0.5 * (f[..., 0] + f[..., 2]) - f[..., 1]
+    def mask(self, bgr: np.ndarray, step: int = 1) -> np.ndarray:
+        """Interior mask (uint8, 255 inside) of an H x W x 3 uint8 BGR image, sampled every
+        ``step`` pixels from ``step // 2`` (the full image for step 1)."""
+        return grid_mask(bgr, step, step // 2, *self.args)[0]
+
+
+@njit(cache=True, inline="always")
+def is_marker(img: np.ndarray, y: int, x: int, min_score: float, green_ratio: float,
+              balance: float, min_level: float) -> bool:
+    """The interior test of pixel (x, y) of a BGR uint8 image."""
+    b = float(img[y, x, 0])
+    g = float(img[y, x, 1])
+    r = float(img[y, x, 2])
+    lo = min(r, b)
+    return (lo > min_level and 0.5 * (r + b) - g > min_score and g < green_ratio * lo
+            and abs(r - b) < balance * max(r, b))
+
+
+@njit(cache=True, inline="always")
+def score(img: np.ndarray, y: int, x: int) -> float:
+    """(R + B) / 2 - G of pixel (x, y): linear in the marker's coverage of the pixel."""
+    return 0.5 * (float(img[y, x, 0]) + float(img[y, x, 2])) - float(img[y, x, 1])
+
+
+@njit(cache=True)
+def grid_mask(img: np.ndarray, step: int, offset: int, min_score: float, green_ratio: float,
+              balance: float, min_level: float) -> tuple[np.ndarray, int]:
+    """Interior mask on the grid (offset + i step, offset + j step), and its count."""
+    h = (img.shape[0] - offset + step - 1) // step
+    w = (img.shape[1] - offset + step - 1) // step
+    out = np.zeros((h, w), np.uint8)
+    count = 0
+    for i in range(h):
+        y = offset + i * step
+        for j in range(w):
+            if is_marker(img, y, offset + j * step, min_score, green_ratio, balance, min_level):
+                out[i, j] = 255
+                count += 1
+    return out, count

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+
 import cv2
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -9,7 +11,12 @@ from schemas import FrameEncoding, MarkerVertices
 from schemas.keys import VERTICES
 from services.config import ServiceSettings
 from services.vertex_extractor.colour import ColourModel
-from services.vertex_extractor.extractor import Detection, ExtractorParams, RhombusExtractor
+from services.vertex_extractor.extractor import (
+    Detection,
+    ExtractorParams,
+    RhombusExtractor,
+    warm_up,
+)
 
 
 class ColourSettings(BaseModel):
@@ -48,7 +55,9 @@ def to_message(det: Detection, seq: int, stamp_ns: int, width: int, height: int
 
 async def main(ctx, config: Settings) -> None:
     bus, log = ctx.bus, ctx.log
-    extractor = RhombusExtractor(params_from(config))
+    params = params_from(config)
+    await asyncio.to_thread(warm_up, params)  # compiled kernels ready before the first frame
+    extractor = RhombusExtractor(params)
     frames = bus.subscribe_frames(latest=True)
     async for frame in frames:
         h = frame.header
