@@ -73,7 +73,8 @@ def wrap_angle(angle: float) -> float:
 
 def quaternion_from_R(R: np.ndarray) -> tuple[float, float, float, float]:
     """Unit quaternion (x, y, z, w) of a rotation matrix, w >= 0."""
-    m = R
+    m = np.asarray(R, dtype=np.float64).tolist()  # Python floats: no numpy per element
+    m = {(i, k): m[i][k] for i in range(3) for k in range(3)}
     tr = m[0, 0] + m[1, 1] + m[2, 2]
     if tr > 0:
         s = math.sqrt(tr + 1.0) * 2
@@ -91,8 +92,7 @@ def quaternion_from_R(R: np.ndarray) -> tuple[float, float, float, float]:
         s = math.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1]) * 2
         w, x = (m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s
         y, z = (m[1, 2] + m[2, 1]) / s, 0.25 * s
-    q = np.array([x, y, z, w])
-    q /= np.linalg.norm(q)
-    if q[3] < 0:
-        q = -q
-    return float(q[0]), float(q[1]), float(q[2]), float(q[3])
+    norm = math.sqrt(x * x + y * y + z * z + w * w)
+    if w < 0:
+        norm = -norm
+    return float(x / norm), float(y / norm), float(z / norm), float(w / norm)

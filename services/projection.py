@@ -8,10 +8,11 @@ both kernels directly on its hot path.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+
+from services.jit import njit
 
 
-@njit(cache=True)
+@njit()
 def project_px(K: np.ndarray, dist: np.ndarray, points_cam: np.ndarray) -> np.ndarray:
     """Points in the camera optical frame (N, 3) m -> pixels (N, 2)."""
     k1, k2, p1, p2, k3 = dist[0], dist[1], dist[2], dist[3], dist[4]
@@ -29,7 +30,7 @@ def project_px(K: np.ndarray, dist: np.ndarray, points_cam: np.ndarray) -> np.nd
     return out
 
 
-@njit(cache=True)
+@njit()
 def normalise_px(K: np.ndarray, points_px: np.ndarray) -> np.ndarray:
     """Pixels (N, 2) -> normalised image coordinates (N, 2) for a camera without distortion."""
     n = points_px.shape[0]
@@ -41,7 +42,7 @@ def normalise_px(K: np.ndarray, points_px: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit()
 def rms_px(a: np.ndarray, b: np.ndarray) -> float:
     """RMS distance (px) between two (N, 2) point sets."""
     s = 0.0

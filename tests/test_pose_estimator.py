@@ -115,8 +115,8 @@ def test_upright_prior_at_least_halves_wrong_branches_at_moderate_noise(monkeypa
     import services.pose_estimator.evaluate as ev
     original = ev.estimate_marker_pose
     monkeypatch.setattr(ev, "estimate_marker_pose",
-                        lambda cam, v, p, up_cam=None, sigma_px=0.2: original(cam, v, p,
-                                                                              sigma_px=sigma_px))
+                        lambda cam, v, p, up_cam=None, sigma_px=0.2, **_: original(
+                            cam, v, p, sigma_px=sigma_px))
     _wrong, _, image_only = wrong_branches(cases)
     assert decidable > 300
     assert with_prior <= 0.01 * decidable and 2 * with_prior <= image_only

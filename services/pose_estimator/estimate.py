@@ -10,10 +10,10 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from numba import njit
 
 from services.camera import CameraModel
 from services.geometry import inv_T
+from services.jit import njit
 from services.pose_estimator.p4p import (
     OK,
     PoseError,
@@ -88,7 +88,7 @@ def estimate_marker_pose(camera: CameraModel, vertices_px: np.ndarray, marker_po
     return MarkerPose(T, reproj, cov, tuple(cands), chosen)
 
 
-@njit(cache=True)
+@njit()
 def _marker_pose(model: np.ndarray, v: np.ndarray, q: np.ndarray, K: np.ndarray,
                  dist: np.ndarray, steps: int, up: np.ndarray, prior_w: float,
                  previous_R: np.ndarray, continuity_w: float, ambiguity_n: float,
@@ -129,7 +129,7 @@ def humanoid_floor_pose(T_world_camera: np.ndarray, T_camera_marker: np.ndarray,
     return (x, y, yaw), (None if cov6 is None else J @ cov6 @ J.T)
 
 
-@njit(cache=True)
+@njit()
 def _floor_pose_jacobian(T_wc: np.ndarray, T_cm: np.ndarray, T_mh: np.ndarray
                          ) -> tuple[float, float, float, np.ndarray]:
     """Floor pose of T_wc T_cm T_mh and its Jacobian (3, 6) for T_cm <- (exp(w) R, t + dt).

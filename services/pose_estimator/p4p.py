@@ -24,7 +24,8 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+
+from services.jit import njit
 
 
 class PoseError(ValueError):
@@ -62,7 +63,7 @@ def raise_for(status: int) -> None:
 
 # -- homography ------------------------------------------------------------------------------
 
-@njit(cache=True)
+@njit()
 def _square_to_quad(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Homography taking the unit square (0,0), (1,0), (1,1), (0,1) to a quad (Heckbert);
     all zeros when degenerate."""
@@ -81,7 +82,7 @@ def _square_to_quad(x: np.ndarray, y: np.ndarray) -> np.ndarray:
     return H
 
 
-@njit(cache=True)
+@njit()
 def _collinear(x: np.ndarray, y: np.ndarray) -> bool:
     """Are any three of the four points (nearly) collinear?"""
     scale = 0.0
@@ -96,7 +97,7 @@ def _collinear(x: np.ndarray, y: np.ndarray) -> bool:
     return False
 
 
-@njit(cache=True)
+@njit()
 def _inv3(M: np.ndarray) -> np.ndarray:
     """Inverse of a 3x3 matrix by its adjugate."""
     a, b, c = M[0, 0], M[0, 1], M[0, 2]
@@ -113,7 +114,7 @@ def _inv3(M: np.ndarray) -> np.ndarray:
     return out
 
 
-@njit(cache=True)
+@njit()
 def homography_4pt(model_xy: np.ndarray, image_xy: np.ndarray) -> tuple[int, np.ndarray]:
     """(status, H): exact homography (H[2,2] = 1) mapping 4 model points to 4 image points,
     in closed form through the unit square."""
@@ -129,7 +130,7 @@ def homography_4pt(model_xy: np.ndarray, image_xy: np.ndarray) -> tuple[int, np.
 
 # -- IPPE ------------------------------------------------------------------------------------
 
-@njit(cache=True)
+@njit()
 def _ippe_rotations(v0: float, v1: float, J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """The two rotations of IPPE_dec from the image of the origin v and the Jacobian J."""
     t = math.hypot(v0, v1)
@@ -162,7 +163,7 @@ def _ippe_rotations(v0: float, v1: float, J: np.ndarray) -> tuple[np.ndarray, np
     return Rv @ M1, Rv @ M2
 
 
-@njit(cache=True)
+@njit()
 def _translation(R: np.ndarray, mxy: np.ndarray, q: np.ndarray) -> np.ndarray:
     """Least-squares translation for rotation R (model points (x, y, 0), normalised q)."""
     n = q.shape[0]
@@ -185,7 +186,7 @@ def _translation(R: np.ndarray, mxy: np.ndarray, q: np.ndarray) -> np.ndarray:
     return _inv3(A) @ rhs
 
 
-@njit(cache=True)
+@njit()
 def reprojection_rms(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray) -> float:
     """RMS distance (normalised image units) between projected model points and q; inf if a
     point is behind the camera."""
@@ -201,7 +202,7 @@ def reprojection_rms(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndar
     return math.sqrt(s / n)
 
 
-@njit(cache=True)
+@njit()
 def check_inputs(model: np.ndarray, q: np.ndarray) -> int:
     """NOT_FINITE, NOT_PLANAR or OK."""
     for i in range(q.shape[0]):
@@ -215,7 +216,7 @@ def check_inputs(model: np.ndarray, q: np.ndarray) -> int:
     return OK
 
 
-@njit(cache=True)
+@njit()
 def ippe_from_homography(H: np.ndarray, model: np.ndarray, q: np.ndarray
                          ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int]:
     """Both IPPE candidates from the homography H of the centred model (x, y) to q.
@@ -258,7 +259,7 @@ def ippe_from_homography(H: np.ndarray, model: np.ndarray, q: np.ndarray
     return OK, Rs, ts, errs, count
 
 
-@njit(cache=True)
+@njit()
 def ippe4(model: np.ndarray, q: np.ndarray
           ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int]:
     """IPPE for four points: checks, the closed-form homography, both candidates."""
@@ -302,7 +303,7 @@ def ippe(model: np.ndarray, q: np.ndarray) -> list[PoseCandidate]:
 
 # -- refinement ------------------------------------------------------------------------------
 
-@njit(cache=True)
+@njit()
 def exp_so3(w: np.ndarray) -> np.ndarray:
     """Rotation matrix of the rotation vector w (rad)."""
     th = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
@@ -312,7 +313,7 @@ def exp_so3(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + math.sin(th) / th * K + (1 - math.cos(th)) / (th * th) * (K @ K)
 
 
-@njit(cache=True)
+@njit()
 def residuals_and_jacobian(R: np.ndarray, t: np.ndarray, model: np.ndarray,
                            q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Residuals (2N,) in normalised units and their Jacobian (2N, 6) with respect to a
@@ -341,7 +342,68 @@ def residuals_and_jacobian(R: np.ndarray, t: np.ndarray, model: np.ndarray,
     return r, J
 
 
-@njit(cache=True)
+@njit()
+def _normal_equations(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray,
+                      JTJ: np.ndarray, g: np.ndarray) -> None:
+    """JTJ = J^T J and g = J^T r of the reprojection residuals, without forming J."""
+    JTJ[:] = 0.0
+    g[:] = 0.0
+    jx = np.empty(6)
+    jy = np.empty(6)
+    for i in range(q.shape[0]):
+        px = R[0, 0] * model[i, 0] + R[0, 1] * model[i, 1] + R[0, 2] * model[i, 2]
+        py = R[1, 0] * model[i, 0] + R[1, 1] * model[i, 1] + R[1, 2] * model[i, 2]
+        pz = R[2, 0] * model[i, 0] + R[2, 1] * model[i, 1] + R[2, 2] * model[i, 2]
+        X, Y, Z = px + t[0], py + t[1], pz + t[2]
+        iz = 1.0 / Z
+        rx, ry = X * iz - q[i, 0], Y * iz - q[i, 1]
+        ax, ay = -X * iz * iz, -Y * iz * iz
+        jx[0], jx[1], jx[2] = ax * py, iz * pz - ax * px, -iz * py
+        jx[3], jx[4], jx[5] = iz, 0.0, ax
+        jy[0], jy[1], jy[2] = -iz * pz + ay * py, -ay * px, iz * px
+        jy[3], jy[4], jy[5] = 0.0, iz, ay
+        for a in range(6):
+            g[a] += jx[a] * rx + jy[a] * ry
+            for b in range(a, 6):
+                JTJ[a, b] += jx[a] * jx[b] + jy[a] * jy[b]
+    for a in range(6):
+        for b in range(a):
+            JTJ[a, b] = JTJ[b, a]
+
+
+@njit()
+def _solve_spd(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """-A^-1 b for a symmetric positive (semi)definite 6x6 A by Cholesky, with a 1e-12
+    ridge; NaN when A is singular."""
+    n = 6
+    L = np.zeros((n, n))
+    for i in range(n):
+        for k in range(i + 1):
+            s = A[i, k] + (1e-12 if i == k else 0.0)
+            for m in range(k):
+                s -= L[i, m] * L[k, m]
+            if i == k:
+                if s <= 0.0:
+                    return np.full(n, np.nan)
+                L[i, i] = math.sqrt(s)
+            else:
+                L[i, k] = s / L[k, k]
+    y = np.empty(n)
+    for i in range(n):
+        s = -b[i]
+        for m in range(i):
+            s -= L[i, m] * y[m]
+        y[i] = s / L[i, i]
+    x = np.empty(n)
+    for i in range(n - 1, -1, -1):
+        s = y[i]
+        for m in range(i + 1, n):
+            s -= L[m, i] * x[m]
+        x[i] = s / L[i, i]
+    return x
+
+
+@njit()
 def _posterior_cost(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray,
                     up: np.ndarray, prior_w: float) -> float:
     rms = reprojection_rms(R, t, model, q)
@@ -351,7 +413,7 @@ def _posterior_cost(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarr
     return rms * rms * q.shape[0] + (prior_w * tilt) ** 2
 
 
-@njit(cache=True)
+@njit()
 def refine(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray, iterations: int,
            up: np.ndarray, prior_w: float
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
@@ -364,22 +426,22 @@ def refine(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray, itera
     (2N, 6) and the final cost (sum of squared residuals, normalised units).
     """
     cost = _posterior_cost(R, t, model, q, up, prior_w)
+    JTJ = np.empty((6, 6))
+    g = np.empty(6)
+    row = np.empty(6)
     for _ in range(iterations):
-        r, J = residuals_and_jacobian(R, t, model, q)
-        JTJ = J.T @ J
-        g = J.T @ r
+        _normal_equations(R, t, model, q, JTJ, g)
         if prior_w > 0:
             tilt = R[0, 2] * up[0] + R[1, 2] * up[1] + R[2, 2] * up[2]
             # d(n . up)/dw = n x up for a left increment
-            row = np.zeros(6)
             row[0] = prior_w * (R[1, 2] * up[2] - R[2, 2] * up[1])
             row[1] = prior_w * (R[2, 2] * up[0] - R[0, 2] * up[2])
             row[2] = prior_w * (R[0, 2] * up[1] - R[1, 2] * up[0])
-            JTJ += np.outer(row, row)
-            g += row * (prior_w * tilt)
-        for k in range(6):
-            JTJ[k, k] += 1e-12
-        delta = -np.linalg.solve(JTJ, g)
+            for a in range(3):
+                g[a] += row[a] * prior_w * tilt
+                for b in range(3):
+                    JTJ[a, b] += row[a] * row[b]
+        delta = _solve_spd(JTJ, g)
         if not np.all(np.isfinite(delta)):
             break
         R_new = exp_so3(delta[:3]) @ R
@@ -395,13 +457,13 @@ def refine(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray, itera
     return R, t, J, cost
 
 
-@njit(cache=True)
+@njit()
 def covariance_6(J: np.ndarray, sigma_normalised: float) -> np.ndarray:
     """6x6 covariance of (w rad, t m) from the Jacobian and the image noise (normalised)."""
     return sigma_normalised ** 2 * np.linalg.pinv(J.T @ J)
 
 
-@njit(cache=True)
+@njit()
 def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
     """Angle (rad) of the rotation between Ra and Rb."""
     tr = 0.0
@@ -411,7 +473,7 @@ def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
     return math.acos(max(-1.0, min(1.0, 0.5 * (tr - 1.0))))
 
 
-@njit(cache=True)
+@njit()
 def map_pose(model: np.ndarray, q: np.ndarray, steps: int, up: np.ndarray, prior_w: float,
              previous_R: np.ndarray, continuity_w: float, ambiguity_n: float
              ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, np.ndarray,

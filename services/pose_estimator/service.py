@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import math
 from collections import deque
 
 import numpy as np
@@ -30,6 +31,8 @@ class Settings(ServiceSettings):
         default=None, description="x m, y m, yaw rad of a camera that does not move")
     refine: bool = True
     vertex_sigma_px: float = Field(default=0.2, gt=0.0, description="vertex noise, 1-sigma px")
+    tilt_sigma_deg: float = Field(default=3.0, gt=0.0, le=45.0,
+                                  description="upright prior: marker normal level within (deg)")
     continuity_window_s: float = Field(default=0.3, ge=0.0,
                                        description="use the previous pose this recent as a prior")
 
@@ -59,10 +62,11 @@ class PoseEstimator:
         mp = estimate_marker_pose(self.camera, np.array(msg.vertices_px), self.points,
                                   up_cam=self.up_cam, refine_steps=5 if self.config.refine else 0,
                                   sigma_px=self.config.vertex_sigma_px,
+                                  tilt_sigma_rad=math.radians(self.config.tilt_sigma_deg),
                                   previous_R=self._previous[1] if recent else None)
         T = mp.T_camera_marker
         self._previous = (msg.stamp_ns, T[:3, :3])
-        marker = MarkerInCamera(position=tuple(float(v) for v in T[:3, 3]),  # type: ignore[arg-type]
+        marker = MarkerInCamera(position=tuple(T[:3, 3].tolist()),  # type: ignore[arg-type]
                                 quaternion=quaternion_from_R(T[:3, :3]))
         base_pose, reason = self._camera_base_pose(msg.stamp_ns)
         if base_pose is None:
@@ -72,7 +76,7 @@ class PoseEstimator:
         T_world_camera = T_floor(*base_pose) @ self.T_base_camera
         (x, y, yaw), cov = humanoid_floor_pose(T_world_camera, T, self.T_marker_humanoid,
                                                mp.covariance)
-        cov_rows = tuple(tuple(float(c) for c in row) for row in cov) if cov is not None else None
+        cov_rows = tuple(map(tuple, cov.tolist())) if cov is not None else None
         return HumanoidPose(seq=msg.seq, stamp_ns=msg.stamp_ns, x=x, y=y, yaw=yaw,
                             marker_in_camera=marker, reprojection_px=mp.reprojection_px,
                             covariance=cov_rows, area_ratio=msg.area_ratio)  # type: ignore[arg-type]

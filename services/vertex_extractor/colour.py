@@ -10,7 +10,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from numba import njit
+
+from services.jit import njit
 
 
 @dataclass(frozen=True)
@@ -35,7 +36,7 @@ class ColourModel:
         return grid_mask(bgr, step, step // 2, *self.args)[0]
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def is_marker(img: np.ndarray, y: int, x: int, min_score: float, green_ratio: float,
               balance: float, min_level: float) -> bool:
     """The interior test of pixel (x, y) of a BGR uint8 image."""
@@ -47,13 +48,13 @@ def is_marker(img: np.ndarray, y: int, x: int, min_score: float, green_ratio: fl
             and abs(r - b) < balance * max(r, b))
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def score(img: np.ndarray, y: int, x: int) -> float:
     """(R + B) / 2 - G of pixel (x, y): linear in the marker's coverage of the pixel."""
     return 0.5 * (float(img[y, x, 0]) + float(img[y, x, 2])) - float(img[y, x, 1])
 
 
-@njit(cache=True)
+@njit()
 def grid_mask(img: np.ndarray, step: int, offset: int, min_score: float, green_ratio: float,
               balance: float, min_level: float) -> tuple[np.ndarray, int]:
     """Interior mask on the grid (offset + i step, offset + j step), and its count."""

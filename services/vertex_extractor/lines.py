@@ -12,13 +12,14 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit
+
+from services.jit import njit
 
 FIT_OK, TOO_FEW_POINTS, PARALLEL = 0, 1, 2
 PLAUSIBLE, NOT_FINITE, OUTSIDE, NOT_CONVEX, BAD_ANGLES, NOT_STRAIGHT, AREA_MISMATCH = range(7)
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _tls_sse(n: float, sx: float, sy: float, sxx: float, syy: float, sxy: float) -> float:
     """Least total squared distance of points to one line, from their moments."""
     a = sxx - sx * sx / n
@@ -27,7 +28,7 @@ def _tls_sse(n: float, sx: float, sy: float, sxx: float, syy: float, sxy: float)
     return 0.5 * (a + c) - math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
 
 
-@njit(cache=True)
+@njit()
 def best_split(points: np.ndarray, min_points: int) -> int:
     """Index k splitting ordered points (N, 2) into two lines [:k] and [k:] with the least
     total TLS residual: the optimal version of the paper's greedy Table 2."""
@@ -61,7 +62,7 @@ def best_split(points: np.ndarray, min_points: int) -> int:
     return best_k
 
 
-@njit(cache=True)
+@njit()
 def huber_line(points: np.ndarray, c: float = 1.345, iterations: int = 10
                ) -> tuple[float, float, float, float, int]:
     """Huber-weighted TLS line through points (N >= 2, 2) px by IRLS.
@@ -108,7 +109,7 @@ def huber_line(points: np.ndarray, c: float = 1.345, iterations: int = 10
     return nx, ny, d, sq, count
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _intersect(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> bool:
     det = a[0] * b[1] - a[1] * b[0]
     if abs(det) < 1e-9:
@@ -118,7 +119,7 @@ def _intersect(a: np.ndarray, b: np.ndarray, out: np.ndarray) -> bool:
     return True
 
 
-@njit(cache=True)
+@njit()
 def fit_rhombus(u: np.ndarray, d: np.ndarray, min_points: int, drop: int
                 ) -> tuple[int, np.ndarray, float]:
     """Four vertices (left, top, right, bottom) px from the upper points U and lower points
@@ -152,7 +153,7 @@ def fit_rhombus(u: np.ndarray, d: np.ndarray, min_points: int, drop: int
     return FIT_OK, v, math.sqrt(sq / count)
 
 
-@njit(cache=True)
+@njit()
 def check_rhombus(v: np.ndarray, residual: float, blob_area: float, width: int, height: int,
                   min_angle_deg: float, max_residual: float
                   ) -> tuple[int, float, float, float]:

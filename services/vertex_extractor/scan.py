@@ -14,14 +14,14 @@ window's end, exactly on area-sampled images.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
 
+from services.jit import njit
 from services.vertex_extractor.colour import is_marker, score
 
 OK, SEED_OFF_MARKER, BORDER, LOW_CONTRAST = 0, 1, 2, 3
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _run_up(img, x, y, c0, c1, c2, c3):  # type: ignore[no-untyped-def]
     """Topmost row of the run of marker pixels containing (x, y), bridging 1-px gaps."""
     while y > 0:
@@ -34,7 +34,7 @@ def _run_up(img, x, y, c0, c1, c2, c3):  # type: ignore[no-untyped-def]
     return y
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _run_down(img, x, y, c0, c1, c2, c3):  # type: ignore[no-untyped-def]
     """Bottom row of the run of marker pixels containing (x, y), bridging 1-px gaps."""
     last = img.shape[0] - 1
@@ -48,7 +48,7 @@ def _run_down(img, x, y, c0, c1, c2, c3):  # type: ignore[no-untyped-def]
     return y
 
 
-@njit(cache=True, inline="always")
+@njit(inline="always")
 def _column(img, x, prev_top, prev_bottom, c0, c1, c2, c3):  # type: ignore[no-untyped-def]
     """(top, bottom) rows of column x's run overlapping the previous column's run
     [prev_top, prev_bottom]; (-1, -1) when the column has none."""
@@ -73,7 +73,7 @@ def _column(img, x, prev_top, prev_bottom, c0, c1, c2, c3):  # type: ignore[no-u
     return top, bottom
 
 
-@njit(cache=True)
+@njit()
 def find_seed(img: np.ndarray, sx: int, sy: int, radius: int, c0: float, c1: float,
               c2: float, c3: float) -> tuple[int, int]:
     """A marker pixel at or near (sx, sy): along the seed's column, then its row, out to
@@ -91,7 +91,7 @@ def find_seed(img: np.ndarray, sx: int, sy: int, radius: int, c0: float, c1: flo
     return -1, -1
 
 
-@njit(cache=True)
+@njit()
 def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
          c0: float, c1: float, c2: float, c3: float
          ) -> tuple[int, int, int, float, np.ndarray, np.ndarray]:
