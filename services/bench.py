@@ -229,7 +229,8 @@ def bench_vertices(quick: bool) -> None:
                               for img in aruco_frames])
     rows: list[Row] = []
     ref = float(np.median(contour_t))
-    entries = [("ours, tracked (previous frame seeds the ROI)", np.concatenate(tracked_t)),
+    entries = [("ours, tracked (the last marker's centre seeds the scan)",
+                np.concatenate(tracked_t)),
                ("ours, cold (coarse grid search)", cold_t),
                ("OpenCV contour route: cvtColor, inRange, findContours, approxPolyDP", contour_t),
                ("OpenCV ArUco 4x4, same size", aruco_t)]
