@@ -8,7 +8,6 @@ cv2.calibrateCamera), ``e2e`` (frame to ``humanoid/pose`` through the services).
 
 from __future__ import annotations
 
-import argparse
 import asyncio
 import contextlib
 import math
@@ -480,7 +479,7 @@ def bench_e2e(quick: bool) -> None:
              "publisher shares the services' Zenoh session, as the simulator does in `shepherd "
              "run`; own session: the publisher is a second session in the process, reaching the "
              "services over TCP loopback, as a frame source on another machine would. Event "
-             f"loop: {type(asyncio.new_event_loop()).__module__.split('.')[0]}. Goal: "
+             f"loop: {type(asyncio.get_event_loop_policy()).__module__.split('.')[0]}. Goal: "
              "p50 <= 1.5 ms and p99 <= 5 ms in one process at 30 fps; >= 200 frames/s "
              "sustained flat out.")
 
@@ -574,10 +573,9 @@ def run_bench(only: list[str], quick: bool = False) -> int:
     import platform
     print(f"# shepherd bench — {platform.processor() or platform.machine()}, "
           f"Python {platform.python_version()}, {'quick' if quick else 'full'} run")
-    from services.cli import cmd_compile
+    from services.cli import compile_kernels
     _progress("compiling the kernels (cached after the first run)")
-    with contextlib.redirect_stdout(sys.stderr):
-        cmd_compile(argparse.Namespace())
+    compile_kernels(sys.stderr)
     for name, fn in SECTIONS.items():
         if not only or name in only:
             fn(quick)

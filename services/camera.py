@@ -31,11 +31,14 @@ class CameraModel:
 
     def __post_init__(self) -> None:
         K = np.ascontiguousarray(self.K, dtype=np.float64)
-        dist = np.zeros(5)
-        given = np.asarray(self.dist, dtype=np.float64).ravel()[:5]
-        dist[:len(given)] = given
+        given = np.asarray(self.dist, dtype=np.float64).ravel()
         if K.shape != (3, 3):
             raise ValueError(f"K must be 3x3, got shape {K.shape}")
+        if len(given) > 5 and np.any(given[5:]):
+            raise ValueError(f"distortion has {len(given)} coefficients; this model takes "
+                             "k1, k2, p1, p2, k3")
+        dist = np.zeros(5)
+        dist[:min(len(given), 5)] = given[:5]
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", dist)
 

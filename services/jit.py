@@ -3,7 +3,7 @@
 numba checks only the decorated function's own file when it reuses a cached machine-code
 version, so a kernel that calls a kernel from another file could run stale code after an
 edit. All kernel modules therefore share one cache directory named by a hash of all their
-sources: any edit to any of them starts a fresh cache (a full compile, about 25 s).
+sources: any edit to any of them starts a fresh cache (a full compile, about 40 s).
 """
 
 from __future__ import annotations
@@ -23,11 +23,16 @@ KERNEL_SOURCES = ("jit.py", "projection.py", "vertex_extractor/colour.py",
                   "pose_estimator/p4p.py", "pose_estimator/estimate.py")
 
 
-def _cache_dir() -> Path:
+def cache_tag(root: Path = _ROOT, sources: tuple[str, ...] = KERNEL_SOURCES) -> str:
+    """The cache directory's name: numba's version and a hash of all kernel sources."""
     digest = hashlib.sha256()
-    for name in KERNEL_SOURCES:
-        digest.update((_ROOT / name).read_bytes())
-    tag = f"numba-{numba.__version__}-{digest.hexdigest()[:16]}"
+    for name in sources:
+        digest.update((root / name).read_bytes())
+    return f"numba-{numba.__version__}-{digest.hexdigest()[:16]}"
+
+
+def _cache_dir() -> Path:
+    tag = cache_tag()
     for parent in (_ROOT / "__pycache__", Path(os.environ.get(
             "XDG_CACHE_HOME", Path.home() / ".cache")) / "shepherd"):
         try:

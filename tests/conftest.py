@@ -36,10 +36,10 @@ def endpoint() -> str:
 def compiled_kernels() -> None:
     """Compile the numba kernels once, before any test times a service's start (a fresh
     clone compiles them in about 25 s; later runs load them from the on-disk cache)."""
-    from services.pose_estimator.estimate import warm_up as warm_pose
-    from services.vertex_extractor.extractor import warm_up as warm_vertices
-    warm_vertices()
-    warm_pose()
+    import io
+
+    from services.cli import compile_kernels
+    compile_kernels(io.StringIO())
 
 
 @pytest.fixture

@@ -59,6 +59,23 @@ def test_a_crashing_service_is_restarted_with_backoff(monkeypatch, router):
     assert time.monotonic() - t0 < 5.0
 
 
+def test_in_process_services_can_share_an_application_session(monkeypatch, sessions):
+    monkeypatch.setitem(registry.SERVICES, "crashy", "tests.helpers.crashy")
+    import services.launcher as launcher
+
+    def no_own_session(settings):
+        raise AssertionError("run_deployment opened a session of its own")
+    monkeypatch.setattr(launcher, "open_session", no_own_session)
+    crashy.STARTS.clear()
+    crashy.SESSIONS.clear()
+    session = sessions()
+    dep = parse_deployment({"zenoh": {"multicast_scouting": False},
+                            "services": {"crashy": {}}})
+    assert asyncio.run(run_deployment(dep, duration=1.5, session=session)) == 0
+    assert crashy.SESSIONS and all(s is session for s in crashy.SESSIONS)
+    session.put("shepherd/test/still-open", b"1")  # left open for its owner
+
+
 def _alive(session: zenoh.Session) -> set[str]:
     return {str(r.ok.key_expr).rsplit("/", 1)[-1]
             for r in session.liveliness().get("shepherd/alive/**", timeout=1.0) if r.ok}

@@ -216,3 +216,32 @@ def test_service_publishes_world_pose_and_nulls_without_odometry(router, make_bu
         assert p4.seq == 4
         task.cancel()
     asyncio.run(go())
+
+
+def test_service_uses_its_tilt_prior_setting(monkeypatch):
+    import services.pose_estimator.service as svc
+    seen: dict = {}
+    original = svc.estimate_marker_pose
+
+    def spy(*args, **kwargs):
+        seen.update(kwargs)
+        return original(*args, **kwargs)
+    monkeypatch.setattr(svc, "estimate_marker_pose", spy)
+    est = svc.PoseEstimator(CAM, Geometry(), svc.Settings(tilt_sigma_deg=1.5,
+                                                          static_camera_pose=(0.0, 0.0, 0.0)))
+    T = marker_pose(0.4, 320, 240, CAM)
+    v = CAM.project(PTS @ T[:3, :3].T + T[:3, 3])
+    pose = est.estimate(MarkerVertices(seq=1, stamp_ns=1, found=True, width=640, height=480,
+                                       vertices_px=tuple(map(tuple, v))))
+    assert pose.x is not None
+    assert seen["tilt_sigma_rad"] == pytest.approx(math.radians(1.5))
+
+
+def test_camera_model_refuses_distortion_it_cannot_represent():
+    K = CAM.K
+    assert CameraModel(K, [-0.2, 0.1]).dist.tolist() == [-0.2, 0.1, 0.0, 0.0, 0.0]
+    assert CameraModel(K, [-0.2, 0.1, 0, 0, 0.01, 0, 0, 0]).dist[4] == 0.01
+    with pytest.raises(ValueError, match="8 coefficients"):
+        CameraModel(K, [-0.2, 0.1, 0, 0, 0.01, 0.3, 0, 0])
+    with pytest.raises(ValueError, match="3x3"):
+        CameraModel(np.eye(2))

@@ -313,6 +313,25 @@ def exp_so3(w: np.ndarray) -> np.ndarray:
     return np.eye(3) + math.sin(th) / th * K + (1 - math.cos(th)) / (th * th) * (K @ K)
 
 
+@njit(inline="always")
+def _point_rows(R: np.ndarray, t: np.ndarray, m: np.ndarray, q: np.ndarray,
+                jx: np.ndarray, jy: np.ndarray) -> tuple[float, float]:
+    """Residual (rx, ry) of one model point m (3,) against q (2,), normalised units, and its
+    two Jacobian rows jx, jy (6,) for a left rotation increment w (R <- exp(w) R) and t."""
+    px = R[0, 0] * m[0] + R[0, 1] * m[1] + R[0, 2] * m[2]
+    py = R[1, 0] * m[0] + R[1, 1] * m[1] + R[1, 2] * m[2]
+    pz = R[2, 0] * m[0] + R[2, 1] * m[1] + R[2, 2] * m[2]
+    X, Y, Z = px + t[0], py + t[1], pz + t[2]
+    iz = 1.0 / Z
+    ax, ay = -X * iz * iz, -Y * iz * iz  # d(X/Z)/dZ, d(Y/Z)/dZ
+    # d Xc / d w = -[P]x  =>  rows (0, pz, -py), (-pz, 0, px), (py, -px, 0)
+    jx[0], jx[1], jx[2] = ax * py, iz * pz - ax * px, -iz * py
+    jx[3], jx[4], jx[5] = iz, 0.0, ax
+    jy[0], jy[1], jy[2] = -iz * pz + ay * py, -ay * px, iz * px
+    jy[3], jy[4], jy[5] = 0.0, iz, ay
+    return X * iz - q[0], Y * iz - q[1]
+
+
 @njit()
 def residuals_and_jacobian(R: np.ndarray, t: np.ndarray, model: np.ndarray,
                            q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -320,25 +339,9 @@ def residuals_and_jacobian(R: np.ndarray, t: np.ndarray, model: np.ndarray,
     left rotation increment w (R <- exp(w) R) and t."""
     n = q.shape[0]
     r = np.empty(2 * n)
-    J = np.zeros((2 * n, 6))
+    J = np.empty((2 * n, 6))
     for i in range(n):
-        px = R[0, 0] * model[i, 0] + R[0, 1] * model[i, 1] + R[0, 2] * model[i, 2]
-        py = R[1, 0] * model[i, 0] + R[1, 1] * model[i, 1] + R[1, 2] * model[i, 2]
-        pz = R[2, 0] * model[i, 0] + R[2, 1] * model[i, 1] + R[2, 2] * model[i, 2]
-        X, Y, Z = px + t[0], py + t[1], pz + t[2]
-        iz = 1.0 / Z
-        r[2 * i] = X * iz - q[i, 0]
-        r[2 * i + 1] = Y * iz - q[i, 1]
-        ax, ay = -X * iz * iz, -Y * iz * iz  # d(X/Z)/dZ, d(Y/Z)/dZ
-        # d Xc / d w = -[P]x  =>  rows (0, pz, -py), (-pz, 0, px), (py, -px, 0)
-        J[2 * i, 0] = ax * py
-        J[2 * i, 1] = iz * pz - ax * px
-        J[2 * i, 2] = -iz * py
-        J[2 * i + 1, 0] = -iz * pz + ay * py
-        J[2 * i + 1, 1] = -ay * px
-        J[2 * i + 1, 2] = iz * px
-        J[2 * i, 3], J[2 * i, 5] = iz, ax
-        J[2 * i + 1, 4], J[2 * i + 1, 5] = iz, ay
+        r[2 * i], r[2 * i + 1] = _point_rows(R, t, model[i], q[i], J[2 * i], J[2 * i + 1])
     return r, J
 
 
@@ -351,17 +354,7 @@ def _normal_equations(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.nda
     jx = np.empty(6)
     jy = np.empty(6)
     for i in range(q.shape[0]):
-        px = R[0, 0] * model[i, 0] + R[0, 1] * model[i, 1] + R[0, 2] * model[i, 2]
-        py = R[1, 0] * model[i, 0] + R[1, 1] * model[i, 1] + R[1, 2] * model[i, 2]
-        pz = R[2, 0] * model[i, 0] + R[2, 1] * model[i, 1] + R[2, 2] * model[i, 2]
-        X, Y, Z = px + t[0], py + t[1], pz + t[2]
-        iz = 1.0 / Z
-        rx, ry = X * iz - q[i, 0], Y * iz - q[i, 1]
-        ax, ay = -X * iz * iz, -Y * iz * iz
-        jx[0], jx[1], jx[2] = ax * py, iz * pz - ax * px, -iz * py
-        jx[3], jx[4], jx[5] = iz, 0.0, ax
-        jy[0], jy[1], jy[2] = -iz * pz + ay * py, -ay * px, iz * px
-        jy[3], jy[4], jy[5] = 0.0, iz, ay
+        rx, ry = _point_rows(R, t, model[i], q[i], jx, jy)
         for a in range(6):
             g[a] += jx[a] * rx + jy[a] * ry
             for b in range(a, 6):

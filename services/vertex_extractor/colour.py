@@ -30,11 +30,6 @@ class ColourModel:
         return (float(self.min_score), float(self.green_ratio), float(self.balance),
                 float(self.min_level))
 
-    def mask(self, bgr: np.ndarray, step: int = 1) -> np.ndarray:
-        """Interior mask (uint8, 255 inside) of an H x W x 3 uint8 BGR image, sampled every
-        ``step`` pixels from ``step // 2`` (the full image for step 1)."""
-        return grid_mask(bgr, step, step // 2, *self.args)[0]
-
 
 @njit(inline="always")
 def is_marker(img: np.ndarray, y: int, x: int, min_score: float, green_ratio: float,

@@ -18,7 +18,7 @@ import numpy as np
 from services.jit import njit
 from services.vertex_extractor.colour import is_marker, score
 
-OK, SEED_OFF_MARKER, BORDER, LOW_CONTRAST = 0, 1, 2, 3
+OK, BORDER, LOW_CONTRAST = 0, 1, 2
 
 
 @njit(inline="always")

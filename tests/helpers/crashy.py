@@ -7,6 +7,7 @@ import asyncio
 from services.config import ServiceSettings
 
 STARTS: list[int] = []
+SESSIONS: list[object] = []  # the Zenoh session of each start
 
 
 class Settings(ServiceSettings):
@@ -15,6 +16,7 @@ class Settings(ServiceSettings):
 
 async def main(ctx, config: Settings) -> None:
     STARTS.append(len(STARTS))
+    SESSIONS.append(ctx.bus.session)
     if len(STARTS) <= 2:
         raise RuntimeError(f"deliberate crash number {len(STARTS)}")
     while True:
