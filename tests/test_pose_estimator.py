@@ -218,6 +218,58 @@ def test_service_publishes_world_pose_and_nulls_without_odometry(router, make_bu
     asyncio.run(go())
 
 
+def test_odometry_is_interpolated_at_the_frame_stamp_and_held_only_near_it():
+    from services.pose_estimator.odometry import OdometryBuffer
+    buf = OdometryBuffer(maxlen=4)
+    assert buf.at(5, 0.5) == (None, "no camera odometry received")
+    for stamp, yaw in ((30, -3.0), (10, 3.0), (20, 3.1), (40, -2.9)):  # out of order on purpose
+        buf.add(CameraPose(stamp_ns=stamp * 10**8, x=stamp / 10, y=0.0, yaw=yaw))
+    assert [o.stamp_ns for o in buf.samples] == [10**9, 2 * 10**9, 3 * 10**9, 4 * 10**9]
+    (x, _, yaw), why = buf.at(25 * 10**8, 0.5)  # halfway from yaw 3.1 to -3.0, across +-pi
+    assert why == "" and x == pytest.approx(2.5)
+    assert yaw == pytest.approx(math.remainder(3.1 + 0.5 * (2 * math.pi - 6.1), 2 * math.pi))
+    assert buf.at(3 * 10**9, 0.5)[0] == (3.0, 0.0, -3.0)  # an exact stamp is the sample itself
+    assert buf.at(43 * 10**8, 0.5)[0] == (4.0, 0.0, -2.9)  # newer than all: the newest, held
+    assert "1.00 s from the frame" in buf.at(5 * 10**9, 0.5)[1]
+    assert buf.covers(4 * 10**9) and not buf.covers(4 * 10**9 + 1)
+    buf.add(CameraPose(stamp_ns=15 * 10**8, x=1.5, y=0.0, yaw=0.0))  # full: the oldest goes
+    assert [o.stamp_ns // 10**8 for o in buf.samples] == [15, 20, 30, 40]
+
+
+def test_service_waits_briefly_for_odometry_that_trails_the_vertices():
+    import services.pose_estimator.service as svc
+
+    class Mailbox:
+        def __init__(self):
+            self.queue: asyncio.Queue = asyncio.Queue()
+            self.waits = 0
+
+        def get_nowait(self):
+            return None if self.queue.empty() else self.queue.get_nowait()
+
+        async def recv(self, timeout=None):
+            self.waits += 1
+            return await asyncio.wait_for(self.queue.get(), timeout)
+
+    est = svc.PoseEstimator(CAM, Geometry(), svc.Settings())
+    odom = Mailbox()
+
+    async def go():
+        asyncio.get_running_loop().call_later(
+            0.01, odom.queue.put_nowait, CameraPose(stamp_ns=100, x=0.3, y=0.0, yaw=0.0))
+        await svc._await_odometry(est, odom, 100, wait_s=1.0)  # arrives 10 ms later: taken
+        assert est.odom.at(100, 0.5)[0] == (0.3, 0.0, 0.0) and not est.odom_stalled
+        await svc._await_odometry(est, odom, 200, wait_s=0.05)  # never comes: gives up once
+        assert est.odom_stalled
+        waits = odom.waits
+        await svc._await_odometry(est, odom, 300, wait_s=0.05)  # still none: no second wait
+        assert odom.waits == waits
+        odom.queue.put_nowait(CameraPose(stamp_ns=400, x=0.4, y=0.0, yaw=0.0))
+        await svc._await_odometry(est, odom, 400, wait_s=0.05)
+        assert not est.odom_stalled and est.odom.covers(400)
+    asyncio.run(go())
+
+
 def test_service_uses_its_tilt_prior_setting(monkeypatch):
     import services.pose_estimator.service as svc
     seen: dict = {}

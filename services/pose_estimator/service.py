@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import math
-from collections import deque
+import time
 
 import numpy as np
 from pydantic import Field
@@ -20,13 +20,17 @@ from services.pose_estimator.estimate import (
     up_in_camera,
     warm_up,
 )
+from services.pose_estimator.odometry import OdometryBuffer
 from services.pose_estimator.p4p import PoseError
 
 
 class Settings(ServiceSettings):
     intrinsics: RelPath | None = Field(default=None,
                                        description="TOML file; else served on camera/intrinsics")
-    odom_timeout_s: float = Field(default=0.5, gt=0.0)
+    odom_timeout_s: float = Field(default=0.5, gt=0.0,
+                                  description="hold odometry at most this far from a frame (s)")
+    odom_wait_s: float = Field(default=0.05, ge=0.0,
+                               description="wait this long for odometry at the frame's stamp (s)")
     static_camera_pose: tuple[float, float, float] | None = Field(
         default=None, description="x m, y m, yaw rad of a camera that does not move")
     refine: bool = True
@@ -47,7 +51,8 @@ class PoseEstimator:
         self.T_base_camera = geometry.T_base_camera()
         self.T_marker_humanoid = inv_T(geometry.T_humanoid_marker())
         self.up_cam = up_in_camera(self.T_base_camera)
-        self.odom: deque[CameraPose] = deque(maxlen=64)  # recent odometry, oldest first
+        self.odom = OdometryBuffer(maxlen=64)
+        self.odom_stalled = False  # the last wait for odometry ran out; none since
         self._previous: tuple[int, np.ndarray] | None = None  # (stamp_ns, R) of the last pose
 
     def estimate(self, msg: MarkerVertices) -> HumanoidPose:
@@ -81,16 +86,33 @@ class PoseEstimator:
                             marker_in_camera=marker, reprojection_px=mp.reprojection_px,
                             covariance=cov_rows, area_ratio=msg.area_ratio)  # type: ignore[arg-type]
 
+    def needs_odometry(self, stamp_ns: int) -> bool:
+        """True while no odometry at or after ``stamp_ns`` has arrived (and the camera moves)."""
+        return self.config.static_camera_pose is None and not self.odom.covers(stamp_ns)
+
     def _camera_base_pose(self, stamp_ns: int) -> tuple[tuple[float, float, float] | None, str]:
         if self.config.static_camera_pose is not None:
             return self.config.static_camera_pose, ""
-        if not self.odom:
-            return None, "no camera odometry received"
-        nearest = min(self.odom, key=lambda o: abs(o.stamp_ns - stamp_ns))
-        lag = abs(stamp_ns - nearest.stamp_ns) / 1e9
-        if lag > self.config.odom_timeout_s:
-            return None, f"camera odometry is {lag:.2f} s from the frame"
-        return (nearest.x, nearest.y, nearest.yaw), ""
+        return self.odom.at(stamp_ns, self.config.odom_timeout_s)
+
+
+async def _await_odometry(est: PoseEstimator, odom, stamp_ns: int, wait_s: float) -> None:
+    """Take queued odometry; wait up to ``wait_s`` for a sample at or after ``stamp_ns``.
+
+    After a wait runs out, frames do not wait again until odometry flows (one wait an outage).
+    """
+    while (o := odom.get_nowait()) is not None:
+        est.odom.add(o)
+        est.odom_stalled = False
+    deadline = time.monotonic() + wait_s
+    while not est.odom_stalled and est.needs_odometry(stamp_ns):
+        left = deadline - time.monotonic()
+        try:
+            if left <= 0:
+                raise TimeoutError
+            est.odom.add(await odom.recv(timeout=left))
+        except TimeoutError:
+            est.odom_stalled = True
 
 
 async def _intrinsics(ctx, config: Settings) -> CameraModel:
@@ -120,12 +142,11 @@ async def main(ctx, config: Settings) -> None:
     est = PoseEstimator(camera, ctx.deployment.geometry, config)
     failures: set[str] = set()
     async for msg in vertices:
-        while (o := odom.get_nowait()) is not None:
-            est.odom.append(o)
         if config.intrinsics is None and (k := updates.get_nowait()) is not None:
             est.camera = CameraModel.from_message(k)
         if not msg.found:
             continue
+        await _await_odometry(est, odom, msg.stamp_ns, config.odom_wait_s)
         try:
             pose = est.estimate(msg)
         except PoseError as err:
