@@ -1,8 +1,9 @@
 """Accuracy of our P4P beside OpenCV's solvePnP on the same noisy vertices (tests, bench).
 
 Views follow the system's geometry, so the upright prior holds: the humanoid stands at a
-random floor pose 15-80 cm in front of a camera whose height and pitch vary, with its marker
-rolled a little by the gait; vertices get Gaussian noise of 0.1-1 px.
+random floor pose 15-80 cm in front of a camera whose height and pitch vary, leaning up to
+2 deg forward or back, its marker rolled a little by the gait; vertices get Gaussian noise
+of 0.1-1 px.
 """
 
 from __future__ import annotations
@@ -16,8 +17,9 @@ import numpy as np
 
 from services.camera import CameraModel
 from services.config import Geometry
-from services.geometry import T_base_camera, T_floor, inv_T, make_T, rot_z
-from services.pose_estimator.estimate import estimate_marker_pose, up_in_camera
+from services.geometry import T_base_camera, T_floor, inv_T, make_T, rot_y, rot_z
+from services.pose_estimator.estimate import estimate_marker_pose, undistort_px, up_in_camera
+from services.pose_estimator.p4p import ippe, posterior_cost, refine
 
 
 @dataclass(frozen=True)
@@ -29,7 +31,8 @@ class PoseCase:
 
 
 def pose_cases(n: int, seed: int = 0, camera: CameraModel | None = None,
-               noise_px: tuple[float, float] = (0.1, 1.0)) -> list[PoseCase]:
+               noise_px: tuple[float, float] = (0.1, 1.0), lean_deg: float = 2.0
+               ) -> list[PoseCase]:
     camera = camera or CameraModel.paper()
     g = Geometry()
     pts = g.marker_points()
@@ -44,7 +47,8 @@ def pose_cases(n: int, seed: int = 0, camera: CameraModel | None = None,
         hx, hy = mx + g.marker_back_offset_m * math.cos(yaw), my + g.marker_back_offset_m * \
             math.sin(yaw)
         sway = make_T(rot_z(math.radians(rng.uniform(-3, 3))), (0, 0, 0))
-        T = inv_T(T_bc) @ T_floor(hx, hy, yaw) @ g.T_humanoid_marker() @ sway
+        lean = make_T(rot_y(math.radians(rng.uniform(-lean_deg, lean_deg))), (0, 0, 0))
+        T = inv_T(T_bc) @ T_floor(hx, hy, yaw) @ lean @ g.T_humanoid_marker() @ sway
         v = camera.project((T[:3, :3] @ pts.T).T + T[:3, 3])
         if T[2, 3] < 0.1 or np.any(v < 5) or np.any(v > [camera.width - 6, camera.height - 6]):
             continue
@@ -97,30 +101,71 @@ def compare(cases: list[PoseCase], camera: CameraModel | None = None
     return out
 
 
+@dataclass(frozen=True)
+class BranchReport:
+    """How often the final pose is on the wrong IPPE branch (see ``wrong_branches``)."""
+
+    views: int            # views whose mirror pose is more than 10 deg from the truth
+    wrong: int            # of those: the final pose nearer the mirror than the truth
+    decidable: int        # views whose mirror is tilted > ``margin`` sigma beyond the truth
+    wrong_decidable: int  # of those: wrong
+    search_misses: int    # wrong although the truth's side has the higher posterior peak
+
+
+def _mirror(camera: CameraModel, T_true: np.ndarray, pts: np.ndarray) -> np.ndarray | None:
+    """The second IPPE pose of the noise-free view: the branch a wrong choice lands on."""
+    v = camera.project((T_true[:3, :3] @ pts.T).T + T_true[:3, 3])
+    for c in ippe(pts, undistort_px(camera, v)):
+        T = make_T(c.R, c.t)
+        if _errors(T, T_true)[1] > math.radians(10):
+            return T
+    return None
+
+
+def _tilt(T: np.ndarray, up_cam: np.ndarray) -> float:
+    """Angle (rad) between the marker plane and the vertical: 0 when upright."""
+    return math.asin(min(1.0, abs(float(T[:3, 2] @ up_cam))))
+
+
 def wrong_branches(cases: list[PoseCase], camera: CameraModel | None = None,
-                   tilt_sigma_rad: float = math.radians(3.0)) -> tuple[int, int, int]:
-    """(wrong, decidable, wrong among decidable) over views whose two IPPE candidates differ
-    by > 5 deg: wrong when the final pose is nearer (in rotation) the candidate farther from
-    the truth than it is to the truth; decidable when that candidate's normal is tilted more
-    than 2 sigma beyond the truth's, so the upright prior can tell them apart."""
+                   tilt_sigma_rad: float = math.radians(3.0), margin: float = 4.0,
+                   prior: bool = True) -> BranchReport:
+    """Branch choices of the estimator (upright prior on unless ``prior`` is False; no
+    continuity prior).
+
+    The mirror is the other IPPE pose of the noise-free view; a view counts when it is more
+    than 10 deg from the truth. The final pose is wrong when nearer the mirror than the
+    truth. The prior can decide a view when the mirror is tilted more than ``margin``
+    sigmas beyond the truth. A wrong choice is a search miss when Gauss-Newton started at
+    the truth, on the truth's side, ends with a lower posterior cost than the chosen pose:
+    the estimator missed a better mode rather than followed the data.
+    """
     camera = camera or CameraModel.paper()
     pts = Geometry().marker_points()
-    wrong = decidable = wrong_decidable = 0
+    f = 0.5 * (camera.K[0, 0] + camera.K[1, 1])
+    views = wrong = decidable = wrong_decidable = misses = 0
     for c in cases:
-        mp = estimate_marker_pose(camera, c.vertices_px, pts, up_cam=c.up_cam,
-                                  sigma_px=c.noise_px, tilt_sigma_rad=tilt_sigma_rad)
-        if len(mp.candidates) < 2:
+        T_true = c.T_camera_marker
+        mirror = _mirror(camera, T_true, pts)
+        if mirror is None:
             continue
-        d = [_errors(T, c.T_camera_marker)[1] for T in mp.candidates]
-        if abs(d[0] - d[1]) <= math.radians(5):
-            continue
-        other = mp.candidates[int(np.argmax(d))]
-        is_wrong = _errors(mp.T_camera_marker, c.T_camera_marker)[1] > \
-            _errors(mp.T_camera_marker, other)[1]
-        tilt_other = math.asin(min(1.0, abs(float(other[:3, 2] @ c.up_cam))))
-        tilt_true = math.asin(min(1.0, abs(float(c.T_camera_marker[:3, 2] @ c.up_cam))))
-        can = tilt_other > 2 * tilt_sigma_rad + tilt_true
-        decidable += int(can)
+        mp = estimate_marker_pose(camera, c.vertices_px, pts,
+                                  up_cam=c.up_cam if prior else None, sigma_px=c.noise_px,
+                                  tilt_sigma_rad=tilt_sigma_rad)
+        T = mp.T_camera_marker
+        is_wrong = _errors(T, T_true)[1] > _errors(T, mirror)[1]
+        can = _tilt(mirror, c.up_cam) - _tilt(T_true, c.up_cam) > margin * tilt_sigma_rad
+        views += 1
         wrong += int(is_wrong)
+        decidable += int(can)
         wrong_decidable += int(can and is_wrong)
-    return wrong, decidable, wrong_decidable
+        if is_wrong:
+            q = undistort_px(camera, c.vertices_px)
+            w = c.noise_px / f / tilt_sigma_rad if prior else 0.0
+            chosen = posterior_cost(T[:3, :3].copy(), T[:3, 3].copy(), pts, q, c.up_cam, w)
+            R, t, _, truth_side = refine(T_true[:3, :3].copy(), T_true[:3, 3].copy(), pts, q,
+                                         30, c.up_cam, w)
+            T_side = make_T(R, t)
+            misses += int(truth_side < 0.999 * chosen and
+                          _errors(T_side, T_true)[1] < _errors(T_side, mirror)[1])
+    return BranchReport(views, wrong, decidable, wrong_decidable, misses)

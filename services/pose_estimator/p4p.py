@@ -397,8 +397,9 @@ def _solve_spd(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 @njit()
-def _posterior_cost(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray,
-                    up: np.ndarray, prior_w: float) -> float:
+def posterior_cost(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray,
+                   up: np.ndarray, prior_w: float) -> float:
+    """Sum of squared reprojection residuals plus ``(prior_w * tilt)²`` (normalised units)."""
     rms = reprojection_rms(R, t, model, q)
     if not math.isfinite(rms):
         return np.inf
@@ -418,7 +419,7 @@ def refine(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray, itera
     whose normal is level within sigma_tilt. Returns R, t, the reprojection Jacobian
     (2N, 6) and the final cost (sum of squared residuals, normalised units).
     """
-    cost = _posterior_cost(R, t, model, q, up, prior_w)
+    cost = posterior_cost(R, t, model, q, up, prior_w)
     JTJ = np.empty((6, 6))
     g = np.empty(6)
     row = np.empty(6)
@@ -439,7 +440,7 @@ def refine(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray, itera
             break
         R_new = exp_so3(delta[:3]) @ R
         t_new = t + delta[3:]
-        new_cost = _posterior_cost(R_new, t_new, model, q, up, prior_w)
+        new_cost = posterior_cost(R_new, t_new, model, q, up, prior_w)
         if new_cost > cost:
             break
         converged = cost - new_cost <= 1e-9 * cost
