@@ -8,6 +8,9 @@ Zenoh thread appends to a bounded deque and schedules at most one wake-up of the
 
 Every received payload is validated; an invalid one is counted per (key, reason), logged once
 per key, and dropped. The service never sees it and keeps running.
+
+Buses sharing a session deliver to each other in-process (``services.local_delivery``): the
+message object itself, while Zenoh carries it to everyone else.
 """
 
 from __future__ import annotations
@@ -31,6 +34,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
 from schemas import FrameEncoding, FrameHeader, Keys, Message
 from schemas.keys import FRAME
+from services.local_delivery import LocalHub, hub_for
 
 log = logging.getLogger("shepherd.bus")
 
@@ -50,6 +54,9 @@ class ZenohSettings(BaseModel):
     listen: list[str] = Field(default_factory=list)
     multicast_scouting: bool = True
     config_file: Path | None = None
+    local_delivery: bool = Field(default=True, description=(
+        "services sharing a session take each other's messages in-process (still published "
+        "to Zenoh for everyone else)"))
 
 
 def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
@@ -136,6 +143,7 @@ class Subscription(Generic[T]):
         self.received = 0
         self.dropped = 0
         self._undeclare: Callable[[], None] = lambda: None
+        self._loop_thread = threading.get_ident()  # created in the running loop
 
     def push(self, item: T) -> None:
         """Called from any thread: store the item and wake the reader (at most one pending)."""
@@ -147,6 +155,9 @@ class Subscription(Generic[T]):
             schedule = not self._wakeup_pending
             self._wakeup_pending = True
         if schedule:
+            if threading.get_ident() == self._loop_thread:  # in-process delivery
+                self._wake()
+                return
             with contextlib.suppress(RuntimeError):  # loop closed during shutdown
                 self._loop.call_soon_threadsafe(self._wake)
 
@@ -196,8 +207,9 @@ class _FrameSubscription(Subscription[Any]):
     def get_nowait(self) -> Frame | None:  # type: ignore[override]
         while (item := super().get_nowait()) is not None:
             header, payload, received_ns, key = item
+            data = payload if isinstance(payload, bytes) else payload.to_bytes()
             try:
-                return Frame(header, decode_image(header, payload.to_bytes()), received_ns)
+                return Frame(header, decode_image(header, data), received_ns)
             except ValueError as err:
                 self._bus.rejections.add(key, str(err))  # type: ignore[union-attr]
         return None
@@ -211,12 +223,15 @@ class Bus:
         session: an open Zenoh session (owned by the caller).
         keys: the key table for the deployment's namespace.
         service: the service name, used for logs and the ``alive/<service>`` token.
+        local_delivery: take messages published by buses of the same session straight from
+            them (see ``services.local_delivery``); False sends everything through Zenoh.
     """
 
     session: zenoh.Session
     keys: Keys = field(default_factory=Keys)
     service: str = "client"
     rejections: Rejections | None = None  # shared across restarts when the launcher gives one
+    local_delivery: bool = True
     _closers: list[Callable[[], None]] = field(default_factory=list, init=False)
     _publishers: dict[str, Any] = field(default_factory=dict, init=False)
 
@@ -224,6 +239,7 @@ class Bus:
         self.log = logging.getLogger(f"shepherd.{self.service}")
         if self.rejections is None:
             self.rejections = Rejections(self.log)
+        self._hub: LocalHub | None = hub_for(self.session) if self.local_delivery else None
 
     # -- lifecycle -------------------------------------------------------------------------
 
@@ -259,6 +275,8 @@ class Bus:
     def put(self, suffix: str, message: Message) -> None:
         """Publish a message as JSON on ``<namespace>/<suffix>``."""
         key = self.keys.key(suffix)
+        if self._hub is not None:
+            self._hub.deliver(key, message)
         self._publisher(key, message.zenoh_encoding()).put(message.model_dump_json())
 
     def put_frame(self, header: FrameHeader, payload: bytes | np.ndarray) -> None:
@@ -268,15 +286,40 @@ class Bus:
         if expected is not None and len(data) != expected:
             raise ValueError(f"frame payload is {len(data)} bytes, header says {expected}")
         enc = JPEG_ENCODING if header.encoding is FrameEncoding.JPEG else FRAME_ENCODING
-        self._publisher(self.keys.key(FRAME), enc).put(
-            data, attachment=header.model_dump_json().encode())
+        key = self.keys.key(FRAME)
+        if self._hub is not None:
+            self._hub.deliver(key, (header, data))  # bytes: immutable, shared without a copy
+        self._publisher(key, enc).put(data, attachment=header.model_dump_json().encode())
 
     # -- subscribing -----------------------------------------------------------------------
 
-    def _declare(self, key: str, callback: Callable[[zenoh.Sample], None]) -> Callable[[], None]:
-        sub = self.session.declare_subscriber(key, callback)
-        self._closers.append(sub.undeclare)
-        return sub.undeclare
+    def _declare(self, key: str, callback: Callable[[zenoh.Sample], None],
+                 local: Callable[[str, Any], None] | None = None) -> Callable[[], None]:
+        """Subscribe ``callback`` to Zenoh samples and ``local`` to in-process deliveries (then
+        Zenoh brings only other sessions' samples); returns the undeclare function."""
+        if self._hub is None or local is None:
+            sub = self.session.declare_subscriber(key, callback)
+            self._closers.append(sub.undeclare)
+            return sub.undeclare
+        sub = self.session.declare_subscriber(key, callback, allowed_origin=zenoh.Locality.REMOTE)
+        remove = self._hub.add(key, local)
+
+        def undeclare() -> None:
+            remove()
+            sub.undeclare()
+        self._closers.append(undeclare)
+        return undeclare
+
+    def _typed_local(self, model: type[M], push: Callable[[M], None]) -> Callable[[str, Any], None]:
+        """An in-process deliverer that pushes ``model`` messages and rejects anything else."""
+        def deliver(key: str, item: Any) -> None:
+            if isinstance(item, model):
+                push(item)
+            else:
+                got = item.zenoh_encoding() if isinstance(item, Message) else FRAME_ENCODING
+                self.rejections.add(  # type: ignore[union-attr]
+                    key, f"encoding {got!r}, expected {model.zenoh_encoding()!r}")
+        return deliver
 
     def decode(self, sample: zenoh.Sample, model: type[M]) -> M | None:
         """Validate a JSON sample against ``model``; count and return None when invalid."""
@@ -305,7 +348,8 @@ class Bus:
             if msg is not None:
                 sub.push(msg)
 
-        sub._undeclare = self._declare(key_expr or self.keys.key(suffix), on_sample)
+        sub._undeclare = self._declare(key_expr or self.keys.key(suffix), on_sample,
+                                       self._typed_local(model, sub.push))
         return sub
 
     def subscribe_stamped(self, suffix: str, model: type[M], *, queue: int = 256
@@ -318,7 +362,8 @@ class Bus:
             if msg is not None:
                 sub.push((time.time_ns(), msg))
 
-        sub._undeclare = self._declare(self.keys.key(suffix), on_sample)
+        sub._undeclare = self._declare(self.keys.key(suffix), on_sample, self._typed_local(
+            model, lambda msg: sub.push((time.time_ns(), msg))))
         return sub
 
     def frame_header(self, sample: zenoh.Sample) -> FrameHeader | None:
@@ -372,8 +417,18 @@ class Bus:
         each header and size on receipt; pixels are copied and decoded only when taken."""
         size = 1 if latest else queue
         sub = _FrameSubscription(asyncio.get_running_loop(), size, self)
-        zsub = self.session.declare_subscriber(self.keys.key(FRAME),
-                                               zenoh.handlers.RingChannel(size))
+        key = self.keys.key(FRAME)
+        remove_local: Callable[[], None] = lambda: None  # noqa: E731
+        if self._hub is None:
+            zsub = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(size))
+        else:
+            zsub = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(size),
+                                                   allowed_origin=zenoh.Locality.REMOTE)
+
+            def on_local(key: str, item: Any) -> None:
+                if isinstance(item, tuple):
+                    sub.push((item[0], item[1], time.time_ns(), key))
+            remove_local = self._hub.add(key, on_local)
         ring = zsub.handler
 
         def pump() -> None:
@@ -392,6 +447,7 @@ class Bus:
         def undeclare() -> None:
             if not undeclared.is_set():
                 undeclared.set()
+                remove_local()
                 zsub.undeclare()
 
         self._closers.append(undeclare)

@@ -64,7 +64,8 @@ async def _supervise_task(name: str, dep: Deployment, session: object, run: _Run
     rejections = Rejections(logging.getLogger(f"shepherd.{name}"))
     attempt = 0
     while not run.stop.is_set():
-        bus = Bus(session, keys, name, rejections)  # type: ignore[arg-type]
+        bus = Bus(session, keys, name, rejections,  # type: ignore[arg-type]
+                  local_delivery=dep.zenoh.local_delivery)
         try:
             bus.declare_alive()
             bus.declare_queryable(f"{STATS}/{name}", lambda: ServiceStats(

@@ -151,3 +151,64 @@ def test_queryable_and_liveliness(make_bus):
                      b.session.liveliness().get("shepherd/alive/**", timeout=1.0)])
         assert "shepherd/alive/server" not in alive
     asyncio.run(go())
+
+
+def test_buses_sharing_a_session_deliver_in_process_once_and_zenoh_carries_it_on(sessions):
+    from schemas import Keys
+    from services.bus import Bus
+
+    async def go():
+        shared, other = sessions(), sessions()
+        pub, local = Bus(shared, Keys(), "pub"), Bus(shared, Keys(), "local")
+        remote = Bus(other, Keys(), "remote")
+        raw_same = Bus(shared, Keys(), "recorder")
+        try:
+            got_local = local.subscribe(ODOM, CameraPose, latest=False, queue=8)
+            got_remote = remote.subscribe(ODOM, CameraPose, latest=False, queue=8)
+            got_raw = raw_same.subscribe_raw("shepherd/camera/odom", queue=8)
+            wrong_type = local.subscribe(ODOM, IrCommand, latest=False, queue=8)
+            frames = local.subscribe_frames(latest=False, queue=4)
+            frames_remote = remote.subscribe_frames(latest=False, queue=4)
+            await _settle()
+            msg = CameraPose(x=1.0, y=2.0, yaw=0.5)
+            pub.put(ODOM, msg)
+            image = np.arange(48 * 64 * 3, dtype=np.uint8).reshape(48, 64, 3)
+            pub.put_frame(*encode_frame(image, 7, 123))
+            assert got_local.get_nowait() is msg  # the object itself, before any await
+            await asyncio.sleep(0.5)
+            assert got_local.get_nowait() is None  # not a second time through Zenoh
+            assert (await got_remote.recv(timeout=3)) == msg and got_remote.pending() == 0
+            assert CameraPose.model_validate_json((await got_raw.recv(timeout=3))
+                                                  .payload.to_bytes()) == msg
+            assert wrong_type.get_nowait() is None
+            assert local.rejections.total("shepherd/camera/odom") == 1
+            f = frames.get_nowait()
+            assert f.header.seq == 7 and np.array_equal(f.image, image)
+            assert frames.get_nowait() is None
+            assert np.array_equal((await frames_remote.recv(timeout=3)).image, image)
+        finally:
+            for b in (pub, local, remote, raw_same):
+                b.close()
+    asyncio.run(go())
+
+
+def test_local_delivery_off_sends_everything_through_zenoh(sessions):
+    from schemas import Keys
+    from services.bus import Bus
+
+    async def go():
+        shared = sessions()
+        pub = Bus(shared, Keys(), "pub", local_delivery=False)
+        sub_bus = Bus(shared, Keys(), "sub", local_delivery=False)
+        try:
+            sub = sub_bus.subscribe(ODOM, CameraPose)
+            await _settle()
+            msg = CameraPose(x=1.0, y=2.0, yaw=0.5)
+            pub.put(ODOM, msg)
+            assert sub.get_nowait() is None  # nothing in-process: it comes back via Zenoh
+            got = await sub.recv(timeout=3)
+            assert got == msg and got is not msg
+        finally:
+            pub.close()
+            sub_bus.close()
+    asyncio.run(go())

@@ -78,9 +78,7 @@ async def main(ctx, config: Settings) -> None:
                                        "brightness": base_style.brightness * gain})
         rendered = sim.render()
         stamp = time.time_ns()
-        header, payload = encode_frame(rendered.image, seq, stamp, config.jpeg_quality)
-        bus.put_frame(header, payload)
-        ox, oy, oyaw = sim.robot.odometry()
+        ox, oy, oyaw = sim.robot.odometry()  # odometry first: the pose estimator needs it
         bus.put(ODOM, CameraPose(stamp_ns=stamp, x=ox, y=oy, yaw=oyaw))
         T = rendered.T_camera_marker
         h, r = sim.humanoid, sim.robot
@@ -89,6 +87,8 @@ async def main(ctx, config: Settings) -> None:
             camera=Pose2D(x=r.x, y=r.y, yaw=r.yaw),
             marker_in_camera=MarkerInCamera(position=tuple(T[:3, 3]),  # type: ignore[arg-type]
                                             quaternion=quaternion_from_R(T[:3, :3]))))
+        header, payload = encode_frame(rendered.image, seq, stamp, config.jpeg_quality)
+        bus.put_frame(header, payload)
         seq += 1
         if config.realtime:
             next_tick += dt / config.speedup
