@@ -223,8 +223,9 @@ class Bus:
         session: an open Zenoh session (owned by the caller).
         keys: the key table for the deployment's namespace.
         service: the service name, used for logs and the ``alive/<service>`` token.
-        local_delivery: take messages published by buses of the same session straight from
-            them (see ``services.local_delivery``); False sends everything through Zenoh.
+        local_delivery: this bus's subscriptions take messages published by buses of the
+            same session straight from them (see ``services.local_delivery``); False takes
+            everything from Zenoh. Publishing always serves both kinds of subscriber.
     """
 
     session: zenoh.Session
@@ -239,7 +240,7 @@ class Bus:
         self.log = logging.getLogger(f"shepherd.{self.service}")
         if self.rejections is None:
             self.rejections = Rejections(self.log)
-        self._hub: LocalHub | None = hub_for(self.session) if self.local_delivery else None
+        self._hub: LocalHub = hub_for(self.session)
 
     # -- lifecycle -------------------------------------------------------------------------
 
@@ -275,8 +276,7 @@ class Bus:
     def put(self, suffix: str, message: Message) -> None:
         """Publish a message as JSON on ``<namespace>/<suffix>``."""
         key = self.keys.key(suffix)
-        if self._hub is not None:
-            self._hub.deliver(key, message)
+        self._hub.deliver(key, message)
         self._publisher(key, message.zenoh_encoding()).put(message.model_dump_json())
 
     def put_frame(self, header: FrameHeader, payload: bytes | np.ndarray) -> None:
@@ -287,8 +287,7 @@ class Bus:
             raise ValueError(f"frame payload is {len(data)} bytes, header says {expected}")
         enc = JPEG_ENCODING if header.encoding is FrameEncoding.JPEG else FRAME_ENCODING
         key = self.keys.key(FRAME)
-        if self._hub is not None:
-            self._hub.deliver(key, (header, data))  # bytes: immutable, shared without a copy
+        self._hub.deliver(key, (header, data))  # bytes: immutable, shared without a copy
         self._publisher(key, enc).put(data, attachment=header.model_dump_json().encode())
 
     # -- subscribing -----------------------------------------------------------------------
@@ -297,7 +296,7 @@ class Bus:
                  local: Callable[[str, Any], None] | None = None) -> Callable[[], None]:
         """Subscribe ``callback`` to Zenoh samples and ``local`` to in-process deliveries (then
         Zenoh brings only other sessions' samples); returns the undeclare function."""
-        if self._hub is None or local is None:
+        if not self.local_delivery or local is None:
             sub = self.session.declare_subscriber(key, callback)
             self._closers.append(sub.undeclare)
             return sub.undeclare
@@ -419,7 +418,7 @@ class Bus:
         sub = _FrameSubscription(asyncio.get_running_loop(), size, self)
         key = self.keys.key(FRAME)
         remove_local: Callable[[], None] = lambda: None  # noqa: E731
-        if self._hub is None:
+        if not self.local_delivery:
             zsub = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(size))
         else:
             zsub = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(size),

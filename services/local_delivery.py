@@ -4,7 +4,8 @@ Services launched in one process share a session. Their messages still go out th
 (to other processes, machines, recorders), but a subscriber in the same session takes them
 straight from the publisher as Python objects: no JSON, no pixel copy, no hand-over through
 Zenoh's threads. Zenoh-side, those subscribers accept only ``Locality.REMOTE`` samples, so
-nothing arrives twice.
+nothing arrives twice. Hence, in a session with such subscribers, publish through a ``Bus``
+(or from another session): a bare ``session.put`` reaches them only from other sessions.
 """
 
 from __future__ import annotations
