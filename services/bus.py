@@ -436,9 +436,13 @@ class Bus:
                     sample = ring.recv()
                 except zenoh.ZError:  # undeclared: the channel is closed
                     return
-                header = self.frame_header(sample)
-                if header is not None:
-                    sub.push((header, sample.payload, time.time_ns(), str(sample.key_expr)))
+                try:
+                    header = self.frame_header(sample)
+                    if header is not None:
+                        sub.push((header, sample.payload, time.time_ns(), str(sample.key_expr)))
+                except Exception as err:  # never let one sample stop the frames
+                    self.rejections.add(  # type: ignore[union-attr]
+                        str(sample.key_expr), f"frame not taken: {type(err).__name__}: {err}")
 
         threading.Thread(target=pump, name=f"frames-{self.service}", daemon=True).start()
         undeclared = threading.Event()
