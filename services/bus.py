@@ -296,18 +296,21 @@ class Bus:
                  local: Callable[[str, Any], None] | None = None) -> Callable[[], None]:
         """Subscribe ``callback`` to Zenoh samples and ``local`` to in-process deliveries (then
         Zenoh brings only other sessions' samples); returns the undeclare function."""
-        if not self.local_delivery or local is None:
-            sub = self.session.declare_subscriber(key, callback)
-            self._closers.append(sub.undeclare)
-            return sub.undeclare
-        sub = self.session.declare_subscriber(key, callback, allowed_origin=zenoh.Locality.REMOTE)
-        remove = self._hub.add(key, local)
+        in_process = self.local_delivery and local is not None
+        sub = self.session.declare_subscriber(key, callback,
+                                              allowed_origin=self._origin(in_process))
+        remove = self._hub.add(key, local) if in_process else _nothing  # type: ignore[arg-type]
 
         def undeclare() -> None:
             remove()
             sub.undeclare()
         self._closers.append(undeclare)
         return undeclare
+
+    @staticmethod
+    def _origin(in_process: bool) -> zenoh.Locality:
+        """Zenoh samples to take: only other sessions' when this session's come in-process."""
+        return zenoh.Locality.REMOTE if in_process else zenoh.Locality.ANY
 
     def _typed_local(self, model: type[M], push: Callable[[M], None]) -> Callable[[str, Any], None]:
         """An in-process deliverer that pushes ``model`` messages and rejects anything else."""
@@ -417,17 +420,13 @@ class Bus:
         size = 1 if latest else queue
         sub = _FrameSubscription(asyncio.get_running_loop(), size, self)
         key = self.keys.key(FRAME)
-        remove_local: Callable[[], None] = lambda: None  # noqa: E731
-        if not self.local_delivery:
-            zsub = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(size))
-        else:
-            zsub = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(size),
-                                                   allowed_origin=zenoh.Locality.REMOTE)
+        zsub = self.session.declare_subscriber(key, zenoh.handlers.RingChannel(size),
+                                               allowed_origin=self._origin(self.local_delivery))
 
-            def on_local(key: str, item: Any) -> None:
-                if isinstance(item, tuple):
-                    sub.push((item[0], item[1], time.time_ns(), key))
-            remove_local = self._hub.add(key, on_local)
+        def on_local(key: str, item: Any) -> None:
+            if isinstance(item, tuple):  # (header, bytes) from put_frame
+                sub.push((item[0], item[1], time.time_ns(), key))
+        remove_local = self._hub.add(key, on_local) if self.local_delivery else _nothing
         ring = zsub.handler
 
         def pump() -> None:
@@ -497,6 +496,10 @@ class Bus:
             return out
 
         return await asyncio.to_thread(query)
+
+
+def _nothing() -> None:
+    pass
 
 
 def decode_image(header: FrameHeader, data: bytes) -> np.ndarray:

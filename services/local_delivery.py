@@ -23,29 +23,32 @@ class LocalHub:
     """The in-process subscribers of one session: key expression -> deliver(key, item)."""
 
     def __init__(self) -> None:
-        self._subscribers: list[tuple[zenoh.KeyExpr, Deliver]] = []
+        # (subscribers, routes: key -> its deliverers), replaced whole on every change, so a
+        # publisher reads a consistent pair without a lock
+        self._state: tuple[list[tuple[zenoh.KeyExpr, Deliver]], dict[str, list[Deliver]]] = \
+            ([], {})
         self._lock = threading.Lock()
 
     def add(self, key_expr: str, deliver: Deliver) -> Callable[[], None]:
         """Register ``deliver`` for keys intersecting ``key_expr``; returns its remover."""
         entry = (zenoh.KeyExpr(key_expr), deliver)
         with self._lock:
-            self._subscribers = [*self._subscribers, entry]
+            self._state = ([*self._state[0], entry], {})
 
         def remove() -> None:
             with self._lock:
-                self._subscribers = [e for e in self._subscribers if e is not entry]
+                self._state = ([e for e in self._state[0] if e is not entry], {})
         return remove
 
     def deliver(self, key: str, item: Any) -> None:
         """Hand ``item`` published on ``key`` to every matching in-process subscriber."""
-        subscribers = self._subscribers  # replaced, never mutated: safe to read unlocked
-        if not subscribers:
-            return
-        ke = zenoh.KeyExpr(key)
-        for key_expr, deliver in subscribers:
-            if key_expr.intersects(ke):
-                deliver(key, item)
+        subscribers, routes = self._state
+        targets = routes.get(key)
+        if targets is None:  # first publication on this key since the last change
+            ke = zenoh.KeyExpr(key)
+            targets = routes[key] = [d for k, d in subscribers if k.intersects(ke)]
+        for deliver in targets:
+            deliver(key, item)
 
 
 _HUBS: dict[int, tuple[zenoh.Session, LocalHub]] = {}

@@ -216,3 +216,26 @@ def test_local_delivery_off_takes_everything_from_zenoh_and_mixed_buses_still_me
             for b in (pub, off, on):
                 b.close()
     asyncio.run(go())
+
+
+def test_an_unexpected_error_on_one_frame_is_counted_and_the_next_frame_arrives(make_bus):
+    async def go():
+        a, b = make_bus("a"), make_bus("b")
+        original = b.frame_header
+
+        def flaky(sample):
+            header = original(sample)
+            if header is not None and header.seq == 1:
+                raise RuntimeError("injected")
+            return header
+        b.frame_header = flaky  # type: ignore[method-assign]
+        frames = b.subscribe_frames(latest=False, queue=4)
+        await _settle()
+        image = np.zeros((8, 8, 3), np.uint8)
+        a.put_frame(*encode_frame(image, 1, 1))
+        await asyncio.sleep(0.2)
+        a.put_frame(*encode_frame(image, 2, 2))
+        assert (await frames.recv(timeout=3)).header.seq == 2
+        assert b.rejections.by_key()["shepherd/camera/frame"] == {
+            "frame not taken: RuntimeError: injected": 1}
+    asyncio.run(go())

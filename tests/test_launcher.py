@@ -59,6 +59,16 @@ def test_a_crashing_service_is_restarted_with_backoff(monkeypatch, router):
     assert time.monotonic() - t0 < 5.0
 
 
+def test_the_deployment_file_can_turn_local_delivery_off(monkeypatch, router):
+    monkeypatch.setitem(registry.SERVICES, "crashy", "tests.helpers.crashy")
+    crashy.STARTS.clear()
+    crashy.LOCAL_DELIVERY.clear()
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False,
+                                      "local_delivery": False}, "services": {"crashy": {}}})
+    assert asyncio.run(run_deployment(dep, duration=1.0)) == 0
+    assert crashy.LOCAL_DELIVERY and not any(crashy.LOCAL_DELIVERY)
+
+
 def test_in_process_services_can_share_an_application_session(monkeypatch, sessions):
     monkeypatch.setitem(registry.SERVICES, "crashy", "tests.helpers.crashy")
     import services.launcher as launcher
@@ -68,11 +78,13 @@ def test_in_process_services_can_share_an_application_session(monkeypatch, sessi
     monkeypatch.setattr(launcher, "open_session", no_own_session)
     crashy.STARTS.clear()
     crashy.SESSIONS.clear()
+    crashy.LOCAL_DELIVERY.clear()
     session = sessions()
     dep = parse_deployment({"zenoh": {"multicast_scouting": False},
                             "services": {"crashy": {}}})
     assert asyncio.run(run_deployment(dep, duration=1.5, session=session)) == 0
     assert crashy.SESSIONS and all(s is session for s in crashy.SESSIONS)
+    assert all(crashy.LOCAL_DELIVERY)  # on by default
     session.put("shepherd/test/still-open", b"1")  # left open for its owner
 
 

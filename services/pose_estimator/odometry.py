@@ -17,9 +17,6 @@ class OdometryBuffer:
     def __init__(self, maxlen: int = 64) -> None:
         self.samples: deque[CameraPose] = deque(maxlen=maxlen)
 
-    def __len__(self) -> int:
-        return len(self.samples)
-
     def add(self, pose: CameraPose) -> None:
         """Insert ``pose``; out-of-order samples go to their place, a repeated stamp replaces."""
         s = self.samples
@@ -36,7 +33,7 @@ class OdometryBuffer:
                     i -= 1
                 s.insert(i + 1, pose)
                 return
-        if len(s) < (s.maxlen or 0):
+        if len(s) < s.maxlen:  # type: ignore[operator]
             s.appendleft(pose)  # older than everything held, and there is room
 
     def covers(self, stamp_ns: int) -> bool:
@@ -70,4 +67,3 @@ class OdometryBuffer:
         if gap_s > max_gap_s:
             return None, f"camera odometry is {gap_s:.2f} s from the frame"
         return (nearest.x, nearest.y, nearest.yaw), ""
-

@@ -107,9 +107,10 @@ async def _await_odometry(est: PoseEstimator, odom, stamp_ns: int, wait_s: float
     deadline = time.monotonic() + wait_s
     while not est.odom_stalled and est.needs_odometry(stamp_ns):
         left = deadline - time.monotonic()
+        if left <= 0:
+            est.odom_stalled = True
+            return
         try:
-            if left <= 0:
-                raise TimeoutError
             est.odom.add(await odom.recv(timeout=left))
         except TimeoutError:
             est.odom_stalled = True

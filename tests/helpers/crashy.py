@@ -8,6 +8,7 @@ from services.config import ServiceSettings
 
 STARTS: list[int] = []
 SESSIONS: list[object] = []  # the Zenoh session of each start
+LOCAL_DELIVERY: list[bool] = []  # the bus's local_delivery at each start
 
 
 class Settings(ServiceSettings):
@@ -17,6 +18,7 @@ class Settings(ServiceSettings):
 async def main(ctx, config: Settings) -> None:
     STARTS.append(len(STARTS))
     SESSIONS.append(ctx.bus.session)
+    LOCAL_DELIVERY.append(ctx.bus.local_delivery)
     if len(STARTS) <= 2:
         raise RuntimeError(f"deliberate crash number {len(STARTS)}")
     while True:
