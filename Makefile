@@ -1,6 +1,7 @@
 # One-command dev loop. `make run` installs and runs the simulated mission; `make test`
 # installs the dev tools (and the Debian packages some tests use, when run as root) and runs
-# lint and the whole suite. Both use a virtual environment in .venv.
+# lint (ruff, mypy) and the whole suite; `make test-fast` leaves out the slow tests. All use a
+# virtual environment in .venv.
 PYTHON ?= python3
 VENV ?= .venv
 BIN = $(VENV)/bin
@@ -12,7 +13,7 @@ $(BIN)/shepherd: pyproject.toml
 	$(BIN)/shepherd compile
 	touch $@
 
-.PHONY: install run test lint bench clean
+.PHONY: install run test test-fast lint bench clean
 install: $(BIN)/shepherd
 
 run: install
@@ -20,11 +21,19 @@ run: install
 
 lint: install
 	$(BIN)/ruff check schemas services tests
+	$(BIN)/mypy schemas services tests
 
 test: install
 	bash scripts/install-test-deps
-	$(BIN)/ruff check schemas services tests
+	$(MAKE) lint
 	$(BIN)/pytest -q
+
+# everything but the tests marked slow (end-to-end runs, the wheel install), on both cores:
+# under a minute
+test-fast: install
+	bash scripts/install-test-deps
+	$(MAKE) lint
+	$(BIN)/pytest -q -m "not slow" -n 2
 
 bench: install
 	$(BIN)/shepherd bench

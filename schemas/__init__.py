@@ -25,6 +25,7 @@ from schemas.messages import (
     SimTruth,
     now_ns,
 )
+from schemas.validation import describe_validation_error
 
 ALL_MODELS: tuple[type[Message], ...] = (
     FrameHeader, CameraIntrinsics, CameraPose, CameraGoal, MarkerVertices, MarkerInCamera,
@@ -36,6 +37,6 @@ __all__ = [
     "ALL_MODELS", "ROBOSAPIEN_CODES", "TOPICS", "CameraGoal", "CameraIntrinsics", "CameraPose",
     "Command", "FrameEncoding", "FrameHeader", "Hold", "HumanoidPose", "IrBackendRequest",
     "IrBackendStatus", "IrCommand", "Keys", "MarkerInCamera", "MarkerVertices", "Message",
-    "MissionGoal", "MissionState", "Phase", "Pose2D", "ServiceStats", "SimTruth", "model_for",
-    "now_ns",
+    "MissionGoal", "MissionState", "Phase", "Pose2D", "ServiceStats", "SimTruth",
+    "describe_validation_error", "model_for", "now_ns",
 ]

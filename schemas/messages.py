@@ -12,7 +12,7 @@ import time
 from enum import StrEnum
 from typing import Annotated, Any, ClassVar, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, field_validator
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
 
 FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 #: a world coordinate (m): finite and within 10 km, so downstream arithmetic cannot overflow
@@ -176,7 +176,8 @@ class MissionGoal(Message):
 
     stamp_ns: int = Field(default_factory=now_ns, ge=0)
     waypoints: list[CoordXY] = Field(max_length=1000)
-    tolerance_m: FiniteFloat = Field(default=0.03, gt=0.0)
+    tolerance_m: FiniteFloat | None = Field(
+        default=None, gt=0.0, description="goal tolerance l (m); null: the controller's own")
 
 
 class Phase(StrEnum):
@@ -206,15 +207,23 @@ class Hold(Message):
 
 
 class IrCommand(Message):
-    """An infra-red command for the humanoid; ``code`` is the Robosapien byte."""
+    """An infra-red command for the humanoid. ``code`` is the Robosapien byte, derived from
+    ``command``; a message whose code disagrees with its command is invalid (the byte sent
+    always follows the name)."""
 
     stamp_ns: int = Field(default_factory=now_ns, ge=0)
     command: Command
     code: int = Field(default=-1, ge=-1, le=0xFF)
 
-    def model_post_init(self, __context: Any) -> None:
+    @model_validator(mode="after")
+    def _code_follows_command(self) -> IrCommand:
+        expected = ROBOSAPIEN_CODES[self.command]
         if self.code == -1:
-            object.__setattr__(self, "code", ROBOSAPIEN_CODES[self.command])
+            object.__setattr__(self, "code", expected)
+        elif self.code != expected:
+            raise ValueError(f"code 0x{self.code:02X} is not {self.command.value}'s "
+                             f"(0x{expected:02X}); the code follows the command")
+        return self
 
 
 class IrBackendRequest(Message):
@@ -234,6 +243,7 @@ class IrBackendStatus(Message):
     sent: int = 0
     failed: int = 0
     coalesced: int = 0
+    deadman_stops: int = Field(default=0, description="stops sent because commands stopped")
     connected: bool = True
     last_error: str = ""
 

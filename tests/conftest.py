@@ -4,10 +4,12 @@ closed at teardown."""
 
 from __future__ import annotations
 
+import asyncio
 import os
 import socket
 import subprocess
 import sys
+import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
@@ -15,11 +17,11 @@ import pytest
 import zenoh
 
 from schemas import Keys
-from services.bus import Bus, ZenohSettings, open_session, zenoh_config
+from services.runtime.bus import Bus
+from services.runtime.session import ZenohSettings, open_session, zenoh_config
 
 ROOT = Path(__file__).resolve().parent.parent
-SHARED = ROOT.parent / "shared"
-DATASETS = SHARED / "datasets"
+DATASETS = ROOT / "tests" / "data"  # real data sets, each with its README
 
 
 def free_port() -> int:
@@ -38,7 +40,7 @@ def compiled_kernels() -> None:
     clone compiles them in about 25 s; later runs load them from the on-disk cache)."""
     import io
 
-    from services.cli import compile_kernels
+    from services.tools.kernels import compile_kernels
     compile_kernels(io.StringIO())
 
 
@@ -80,8 +82,50 @@ def make_bus(sessions: Callable[[], zenoh.Session]) -> Iterator[Callable[..., Bu
         b.close()
 
 
+def alive_services(session: zenoh.Session, namespace: str = "shepherd") -> set[str]:
+    """Names of the services whose liveliness tokens are up now."""
+    prefix = f"{namespace}/alive/"
+    return {str(r.ok.key_expr).removeprefix(prefix)
+            for r in session.liveliness().get(f"{prefix}*", timeout=1.0) if r.ok is not None}
+
+
+def wait_alive(session: zenoh.Session, *names: str, namespace: str = "shepherd",
+               timeout: float = 30.0) -> None:
+    """Block until every named service's liveliness token is up (a service declares it once
+    its subscriptions exist); fails the test naming the missing ones after ``timeout`` s."""
+    deadline = time.monotonic() + timeout
+    missing = set(names)
+    while time.monotonic() < deadline:
+        missing = set(names) - alive_services(session, namespace)
+        if not missing:
+            return
+        time.sleep(0.05)
+    pytest.fail(f"services not alive after {timeout:.0f} s: {', '.join(sorted(missing))}")
+
+
+async def wait_alive_async(session: zenoh.Session, *names: str, namespace: str = "shepherd",
+                           timeout: float = 30.0) -> None:
+    """:func:`wait_alive` without blocking the event loop (services in this process)."""
+    await asyncio.to_thread(wait_alive, session, *names, namespace=namespace, timeout=timeout)
+
+
+async def wait_matched(bus: Bus, suffix: str, timeout: float = 10.0) -> None:
+    """Wait until a subscriber in another session matches ``<namespace>/<suffix>`` as seen
+    from ``bus``'s session (its declaration has come through the router), instead of a fixed
+    sleep; fails the test after ``timeout`` s."""
+    publisher = bus.session.declare_publisher(bus.keys.key(suffix))
+    try:
+        deadline = time.monotonic() + timeout
+        while not publisher.matching_status.matching:
+            if time.monotonic() > deadline:
+                pytest.fail(f"no subscriber matched {bus.keys.key(suffix)} in {timeout:.0f} s")
+            await asyncio.sleep(0.005)
+    finally:
+        publisher.undeclare()
+
+
 def shepherd_cmd(*args: str) -> list[str]:
-    return [sys.executable, "-m", "services.cli", *args]
+    return [sys.executable, "-m", "services.tools.cli", *args]
 
 
 def run_cli(*args: str, timeout: float = 60.0, cwd: Path | None = None

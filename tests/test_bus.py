@@ -8,7 +8,8 @@ import pytest
 
 from schemas import CameraPose, IrCommand
 from schemas.keys import FRAME, IR_COMMAND, ODOM
-from services.bus import encode_frame
+from services.runtime.frames import encode_frame
+from tests.conftest import wait_matched
 
 
 async def _settle() -> None:
@@ -19,7 +20,7 @@ def test_typed_round_trip(make_bus):
     async def go():
         a, b = make_bus("a"), make_bus("b")
         sub = b.subscribe(ODOM, CameraPose)
-        await _settle()
+        await wait_matched(a, ODOM)
         a.put(ODOM, CameraPose(x=1.0, y=2.0, yaw=0.5))
         msg = await sub.recv(timeout=3)
         assert (msg.x, msg.y, msg.yaw) == (1.0, 2.0, 0.5)
@@ -30,7 +31,7 @@ def test_bounded_queue_keeps_order_and_drops_oldest(make_bus):
     async def go():
         a, b = make_bus("a"), make_bus("b")
         sub = b.subscribe(IR_COMMAND, IrCommand, latest=False, queue=4)
-        await _settle()
+        await wait_matched(a, IR_COMMAND)
         cmds = ["walk_forward", "turn_left", "turn_right", "stop", "walk_backward", "stop"]
         for c in cmds:
             a.put(IR_COMMAND, IrCommand(command=c))
@@ -47,7 +48,7 @@ def test_latest_value_under_frame_flood_keeps_memory_flat_and_delivers_newest(ma
     async def go():
         a, b = make_bus("pub"), make_bus("sub")
         frames = b.subscribe_frames(latest=True)
-        await _settle()
+        await wait_matched(a, FRAME)
         tracemalloc.start()
         base = None
         for seq in range(600):
@@ -79,7 +80,7 @@ def test_malformed_payloads_are_counted_and_the_next_valid_one_arrives(make_bus)
     async def go():
         a, b = make_bus("a"), make_bus("victim")
         sub = b.subscribe(ODOM, CameraPose)
-        await _settle()
+        await wait_matched(a, ODOM)
         key = a.keys.key(ODOM)
         for bad in BAD_PAYLOADS:
             a.session.put(key, bad)
@@ -106,7 +107,7 @@ def test_bad_frames_are_rejected_with_a_reason(make_bus, attachment, payload, re
     async def go():
         a, b = make_bus("a"), make_bus("b")
         frames = b.subscribe_frames()
-        await _settle()
+        await wait_matched(a, FRAME)
         a.session.put(a.keys.key(FRAME), payload, attachment=attachment)
         await asyncio.sleep(0.3)  # latest value: a frame superseded unread is never inspected
         header, data = encode_frame(np.zeros((2, 4, 3), np.uint8), 5, 1)
@@ -123,7 +124,7 @@ def test_jpeg_frames_round_trip(make_bus):
     async def go():
         a, b = make_bus("a"), make_bus("b")
         frames = b.subscribe_frames()
-        await _settle()
+        await wait_matched(a, FRAME)
         header, data = encode_frame(image, 1, 2, jpeg_quality=90)
         a.put_frame(header, data)
         f = await frames.recv(timeout=3)
@@ -155,7 +156,7 @@ def test_queryable_and_liveliness(make_bus):
 
 def test_buses_sharing_a_session_deliver_in_process_once_and_zenoh_carries_it_on(sessions):
     from schemas import Keys
-    from services.bus import Bus
+    from services.runtime.bus import Bus
 
     async def go():
         shared, other = sessions(), sessions()
@@ -194,7 +195,7 @@ def test_buses_sharing_a_session_deliver_in_process_once_and_zenoh_carries_it_on
 
 def test_local_delivery_off_takes_everything_from_zenoh_and_mixed_buses_still_meet(sessions):
     from schemas import Keys
-    from services.bus import Bus
+    from services.runtime.bus import Bus
 
     async def go():
         shared = sessions()
@@ -230,7 +231,7 @@ def test_an_unexpected_error_on_one_frame_is_counted_and_the_next_frame_arrives(
             return header
         b.frame_header = flaky  # type: ignore[method-assign]
         frames = b.subscribe_frames(latest=False, queue=4)
-        await _settle()
+        await wait_matched(a, FRAME)
         image = np.zeros((8, 8, 3), np.uint8)
         a.put_frame(*encode_frame(image, 1, 1))
         await asyncio.sleep(0.2)

@@ -15,10 +15,10 @@ from services.calibration.pattern import GridSheet, PatternSpec
 from services.calibration.run import read_image
 from services.calibration.synthetic import board_pose, render_plane
 from services.calibration.zhang import CalibrationError, calibrate
-from services.camera import CameraModel
-from services.config import parse_deployment
-from services.launcher import run_deployment
-from tests.conftest import DATASETS, run_cli
+from services.core.camera import CameraModel
+from services.runtime.config import parse_deployment
+from services.runtime.launcher import run_deployment
+from tests.conftest import DATASETS, run_cli, wait_alive_async
 
 ZHANG = DATASETS / "zhang1998_calibration"
 OPENCV = DATASETS / "opencv_left_chessboard"
@@ -188,7 +188,7 @@ def test_pattern_is_drawn_at_exact_physical_size(tmp_path: Path, suffix):
     else:
         assert b"pHYs" in data[:100]
         img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_GRAYSCALE)
-        assert img.shape == (round(297 / 25.4 * 200), round(210 / 25.4 * 200))
+        assert img is not None and img.shape == (round(297 / 25.4 * 200), round(210 / 25.4 * 200))
         # the printed grid is itself detectable, with the right pitch
         pts = detect_grid(img).reshape(9, 9, 2)
         pitch_px = np.median(np.diff(pts[:, :, 0], axis=1))
@@ -204,7 +204,7 @@ def test_calibration_service_serves_the_file(tmp_path: Path, router, make_bus):
 
     async def go():
         task = asyncio.create_task(run_deployment(dep, duration=10))
-        await asyncio.sleep(1.5)
+        await wait_alive_async(bus.session, "calibration")
         replies = await bus.get(INTRINSICS, CameraIntrinsics, timeout=2)
         task.cancel()
         return replies

@@ -1,6 +1,5 @@
 import asyncio
 import math
-import os
 import subprocess
 import time
 from pathlib import Path
@@ -10,21 +9,23 @@ import pytest
 from schemas import Command, IrBackendRequest, IrBackendStatus, IrCommand, Phase
 from schemas.keys import IR_BACKEND, IR_COMMAND
 from services.camera_planner.planner import CameraPlanner, PlannerParams
-from services.config import parse_deployment
+from services.core.world import CircleObstacle, World
 from services.ir_transmitter.backends import LircBackend, SerialBackend
 from services.ir_transmitter.protocol import decode_timings, lircd_conf, timings_us
 from services.ir_transmitter.service import Settings as IrSettings
 from services.ir_transmitter.service import Transmitter
-from services.launcher import run_deployment
 from services.mission_controller.controller import ControlParams, HeuristicController
-from services.sim.world import CircleObstacle, World
+from services.runtime.config import parse_deployment
+from services.runtime.launcher import run_deployment
+from tests.conftest import wait_alive_async
+from tests.helpers.pty import Pty
 
 ROOT = Path(__file__).resolve().parent.parent
 K = math.radians(15)
 
 
-def ctrl(**kw) -> HeuristicController:
-    c = HeuristicController(ControlParams(turn_threshold_rad=K, turn_release_rad=math.radians(5),
+def ctrl(**kw: float) -> HeuristicController:
+    c = HeuristicController(ControlParams(turn_threshold_deg=15, turn_release_deg=5,
                                           goal_tolerance_m=0.02, stop_lead_m=0.01, **kw))
     c.set_waypoints([(1.0, 0.0)])
     return c
@@ -68,7 +69,7 @@ def test_controller_stop_lead_and_waypoint_sequence():
 
 
 def planner(**kw) -> CameraPlanner:
-    return CameraPlanner(PlannerParams(distance_m=0.25, marker_back_offset_m=0.05, **kw))
+    return CameraPlanner(PlannerParams(distance_m=0.25, **kw))
 
 
 def test_planner_follows_at_distance_d_and_aims_at_the_marker():
@@ -123,38 +124,6 @@ def test_shipped_lircd_conf_is_the_generated_one():
     assert (ROOT / "deploy/lirc/robosapien.lircd.conf").read_text() == lircd_conf()
 
 
-class Pty:
-    """A pseudo-terminal pair with a stable symlink, so it can be unplugged and replugged."""
-
-    def __init__(self, link: Path) -> None:
-        self.link = link
-        self.plug()
-
-    def plug(self) -> None:
-        import tty
-        self.master, slave = os.openpty()
-        tty.setraw(slave)
-        self.slave_fd = slave
-        if self.link.is_symlink():
-            self.link.unlink()
-        self.link.symlink_to(os.ttyname(slave))
-
-    def unplug(self) -> None:
-        self.link.unlink()
-        os.close(self.master)
-        os.close(self.slave_fd)
-
-    def read(self, n: int, timeout: float = 2.0) -> bytes:
-        import select
-        out = b""
-        end = time.monotonic() + timeout
-        while len(out) < n and time.monotonic() < end:
-            r, _, _ = select.select([self.master], [], [], 0.1)
-            if r:
-                out += os.read(self.master, 64)
-        return out
-
-
 def test_serial_backend_writes_the_codes_and_survives_unplug(tmp_path: Path):
     pty = Pty(tmp_path / "ttyRobo")
     tx = Transmitter(SerialBackend(str(pty.link), 115200, reopen_s=0.05),
@@ -167,7 +136,7 @@ def test_serial_backend_writes_the_codes_and_survives_unplug(tmp_path: Path):
         pty.unplug()
         ok = True
         for _ in range(3):  # the first write after the unplug fails, then the port is gone
-            ok = ok and await tx.send(IrCommand(command="walk_forward"))
+            ok = ok and await tx.send(IrCommand(command=Command.WALK_FORWARD))
             await asyncio.sleep(0.06)
         assert not ok and tx.failed >= 1 and "serial port" in tx.last_error
         assert not tx.backend.connected
@@ -177,7 +146,7 @@ def test_serial_backend_writes_the_codes_and_survives_unplug(tmp_path: Path):
         assert pty.read(1) == bytes([0x86])
         # a stale one is not resent
         await asyncio.sleep(0.06)
-        tx._pending = IrCommand(command="turn_left", stamp_ns=time.time_ns() - 5 * 10**9)
+        tx._pending = IrCommand(command=Command.TURN_LEFT, stamp_ns=time.time_ns() - 5 * 10**9)
         await tx.retry_pending()
         assert pty.read(1, timeout=0.3) == b""
         assert tx.status().connected
@@ -216,12 +185,14 @@ def test_lirc_backend_against_a_real_lircd(tmp_path: Path):
                 break
             time.sleep(0.1)
         backend = LircBackend(socket=str(sock))
-        sent = ["walk_forward", "turn_left", "stop", "turn_right", "walk_backward"]
+        sent = [Command.WALK_FORWARD, Command.TURN_LEFT, Command.STOP, Command.TURN_RIGHT,
+                Command.WALK_BACKWARD]
         for c in sent:
             backend.send(IrCommand(command=c))
         time.sleep(0.3)
         values = [int(line.split()[1]) for line in out.read_text().splitlines() if line.strip()]
-        frames, current = [], []
+        frames: list[list[int]] = []
+        current: list[int] = []
         for v in values:
             if v > 50000:  # the trailing gap ends a frame
                 frames.append(current)
@@ -231,7 +202,7 @@ def test_lirc_backend_against_a_real_lircd(tmp_path: Path):
         assert [decode_timings(f) for f in frames] == [IrCommand(command=c).code for c in sent]
         from services.ir_transmitter.backends import BackendError
         with pytest.raises(BackendError, match="unreachable"):
-            LircBackend(socket=str(tmp_path / "nope")).send(IrCommand(command="stop"))
+            LircBackend(socket=str(tmp_path / "nope")).send(IrCommand(command=Command.STOP))
     finally:
         proc.terminate()
         proc.wait(5)
@@ -246,7 +217,7 @@ def test_hot_swap_under_a_stream_of_commands_loses_none(router, make_bus):
 
     async def go():
         task = asyncio.create_task(run_deployment(dep, duration=20))
-        await asyncio.sleep(1.5)
+        await wait_alive_async(bus.session, "ir_transmitter")
         cmds = ["walk_forward", "turn_left", "turn_right", "stop"]
         n = 40
         for i in range(n):
@@ -277,4 +248,4 @@ def test_the_service_feeds_the_firmware_watchdog(tmp_path: Path, router):
     pty.unplug()
     beats = data.count(0)
     assert beats >= 8  # every 0.15 s: well inside the firmware's 0.4 s watchdog
-    assert data.endswith(bytes([0x8E])) or 0x8E in data  # and stop at shutdown
+    assert data[-1] == 0x8E and data.count(0x8E) == 1  # stop once, last, at shutdown

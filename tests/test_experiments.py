@@ -1,6 +1,10 @@
 from pathlib import Path
 
+import pytest
+
 from tests.conftest import run_cli
+
+pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
 
 
 def test_experiments_report_on_a_reduced_run(tmp_path: Path):

@@ -5,15 +5,18 @@ import asyncio
 import signal
 import time
 
+import pytest
 import zenoh
 
 from schemas import HumanoidPose, IrCommand, MarkerInCamera
 from schemas.keys import HUMANOID_POSE, SIM_IR
-from services.bus import ZenohSettings, zenoh_config
-from services.config import parse_deployment
-from services.launcher import run_deployment
 from services.mission_controller import controller as controller_module
-from tests.conftest import endpoint, spawn_cli
+from services.runtime.config import parse_deployment
+from services.runtime.launcher import run_deployment
+from services.runtime.session import ZenohSettings, zenoh_config
+from tests.conftest import endpoint, spawn_cli, wait_alive_async
+
+pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
 
 
 def test_router_restart_under_traffic_sessions_reconnect():
@@ -77,7 +80,7 @@ def test_a_pose_stream_that_stops_ends_in_stop_within_half_a_second(router, make
     async def go() -> float:
         heard = bus.subscribe_stamped(SIM_IR, IrCommand, queue=256)
         task = asyncio.create_task(run_deployment(_control_deployment(router), duration=20))
-        await asyncio.sleep(2.0)
+        await wait_alive_async(bus.session, "mission_controller", "ir_transmitter")
         for _ in range(45):  # 1.5 s of poses at 30 Hz, far from the goal: walk
             bus.put(HUMANOID_POSE, _pose(0.3))
             await asyncio.sleep(1 / 30)
@@ -110,7 +113,7 @@ def test_an_unhandled_exception_in_the_controller_sends_stop(router, make_bus, m
     async def go() -> list[tuple[int, str]]:
         heard = bus.subscribe_stamped(SIM_IR, IrCommand, queue=256)
         task = asyncio.create_task(run_deployment(_control_deployment(router), duration=20))
-        await asyncio.sleep(0.5)
+        await wait_alive_async(bus.session, "mission_controller", "ir_transmitter")
         t_end = time.monotonic() + 4.0
         while time.monotonic() < t_end:
             bus.put(HUMANOID_POSE, _pose(0.3))
@@ -120,7 +123,43 @@ def test_an_unhandled_exception_in_the_controller_sends_stop(router, make_bus, m
     cmds = asyncio.run(go())
     values = [c for _, c in cmds]
     first_walk = values.index("walk_forward")
-    # walking, then the crash sends stop, then the restarted controller walks again
+    # walking, then the caught fault sends stop, then the same controller walks again
     assert "stop" in values[first_walk:]
     after = values[first_walk:][values[first_walk:].index("stop"):]
     assert "walk_forward" in after
+
+
+def test_a_controller_that_crashes_sends_stop_and_is_restarted(router, make_bus, monkeypatch):
+    """An exception outside the control step ends the controller's main: its ``finally``
+    sends stop, and the launcher restarts it (counted in ``stats/mission_controller``)."""
+    from schemas import ServiceStats
+    from services.mission_controller import service as controller_service
+    real_state = controller_service.MissionState
+    calls = [0]
+
+    def crashing_state(**kw: object) -> object:
+        calls[0] += 1
+        if calls[0] == 15:
+            raise RuntimeError("injected crash")
+        return real_state(**kw)
+
+    monkeypatch.setattr(controller_service, "MissionState", crashing_state)
+    bus = make_bus("camera")
+
+    async def go() -> tuple[list[str], list[ServiceStats]]:
+        heard = bus.subscribe_stamped(SIM_IR, IrCommand, queue=256)
+        task = asyncio.create_task(run_deployment(_control_deployment(router), duration=20))
+        await wait_alive_async(bus.session, "mission_controller", "ir_transmitter")
+        t_end = time.monotonic() + 4.0
+        while time.monotonic() < t_end:
+            bus.put(HUMANOID_POSE, _pose(0.3))
+            await asyncio.sleep(1 / 30)
+        stats = await bus.get("stats/mission_controller", ServiceStats, timeout=2)
+        task.cancel()
+        return [m.command.value for _, m in iter(heard.get_nowait, None)], stats
+    values, stats = asyncio.run(go())
+    assert calls[0] > 15  # the restarted controller went on publishing its state
+    assert stats and stats[0].restarts == 1
+    first_walk = values.index("walk_forward")
+    after_crash = values[first_walk:][values[first_walk:].index("stop"):]
+    assert "walk_forward" in after_crash  # the restarted controller walks again

@@ -53,7 +53,7 @@ def _run(build: Path, codes: list[int | str]) -> tuple[list, list[int]]:
 
 
 def test_every_command_is_emitted_with_the_right_carrier_and_timing(build: Path):
-    codes = [ROBOSAPIEN_CODES[c] for c in ROBOSAPIEN_CODES]
+    codes: list[int | str] = [ROBOSAPIEN_CODES[c] for c in ROBOSAPIEN_CODES]
     frames, echoed = _run(build, codes)
     assert [f.code for f in frames] == codes
     assert echoed == codes  # the firmware acknowledges each frame

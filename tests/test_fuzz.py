@@ -6,6 +6,7 @@ import threading
 import time
 
 import numpy as np
+import pytest
 import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
@@ -17,11 +18,13 @@ from schemas import (
     ServiceStats,
 )
 from schemas.keys import FRAME, IR_BACKEND, IR_COMMAND, SIM_IR, VERTICES
-from services.bus import encode_frame
-from services.config import parse_deployment
-from services.launcher import run_deployment
-from tests.conftest import ROOT
+from services.runtime.config import parse_deployment
+from services.runtime.frames import encode_frame
+from services.runtime.launcher import run_deployment
+from tests.conftest import ROOT, wait_alive
 from tests.helpers.fake_frames import render_marker
+
+pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
 
 #: every key some service subscribes to -> those services
 SUBSCRIBED = {
@@ -63,7 +66,7 @@ def payloads(draw: st.DrawFn) -> tuple[bytes, str | None]:
     elif kind == "json":
         data = json.dumps(draw(json_values), allow_nan=True).encode()
     elif kind == "mutated":
-        body = dict(SAMPLE[draw(st.sampled_from(sorted(SAMPLE)))])
+        body: dict[str, object] = dict(SAMPLE[draw(st.sampled_from(sorted(SAMPLE)))])  # type: ignore[call-overload]
         body[draw(st.sampled_from(sorted(body)))] = draw(json_values)
         data = json.dumps(body, allow_nan=True).encode()
     elif kind == "oversized":
@@ -107,7 +110,7 @@ def test_fuzz_every_subscribed_key_of_every_service(router, sessions):
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
     s = sessions()
-    time.sleep(3.0)
+    wait_alive(s, *dep.services)
     tried = [0]
 
     @settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))

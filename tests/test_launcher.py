@@ -10,9 +10,10 @@ import zenoh
 
 from schemas import IrCommand
 from schemas.keys import SIM_IR
-from services import registry
-from services.config import ConfigError, load_deployment, parse_deployment
-from services.launcher import run_deployment
+from services.pose_estimator.service import Settings as PoseSettings
+from services.runtime import registry
+from services.runtime.config import ConfigError, load_deployment, parse_deployment
+from services.runtime.launcher import run_deployment
 from tests.conftest import run_cli, spawn_cli
 from tests.helpers import crashy
 
@@ -44,7 +45,8 @@ def test_missing_file_exits_2(tmp_path: Path):
 def test_paths_in_a_deployment_are_relative_to_it(tmp_path: Path):
     dep = parse_deployment({"services": {"pose_estimator": {"intrinsics": "cam.toml"}}},
                            tmp_path / "d.toml")
-    assert dep.settings_for("pose_estimator").intrinsics == tmp_path / "cam.toml"
+    settings = dep.settings_for("pose_estimator")
+    assert isinstance(settings, PoseSettings) and settings.intrinsics == tmp_path / "cam.toml"
 
 
 def test_a_crashing_service_is_restarted_with_backoff(monkeypatch, router):
@@ -71,7 +73,7 @@ def test_the_deployment_file_can_turn_local_delivery_off(monkeypatch, router):
 
 def test_in_process_services_can_share_an_application_session(monkeypatch, sessions):
     monkeypatch.setitem(registry.SERVICES, "crashy", "tests.helpers.crashy")
-    import services.launcher as launcher
+    import services.runtime.launcher as launcher
 
     def no_own_session(settings):
         raise AssertionError("run_deployment opened a session of its own")

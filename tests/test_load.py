@@ -8,12 +8,15 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from schemas import HumanoidPose
 from schemas.keys import HUMANOID_POSE
-from services.bus import encode_frame
-from tests.conftest import ROOT, spawn_cli
+from services.runtime.frames import encode_frame
+from tests.conftest import ROOT, spawn_cli, wait_alive_async
 from tests.helpers.fake_frames import render_marker
+
+pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
 
 LOAD_S = float(os.environ.get("SHEPHERD_LOAD_S", "60"))
 
@@ -37,7 +40,7 @@ def test_frames_flat_out_for_a_minute(tmp_path: Path, router, make_bus):
 
     async def go() -> tuple[list[tuple[float, int]], list[tuple[float, float]], int, int]:
         poses = bus.subscribe_stamped(HUMANOID_POSE, HumanoidPose, queue=100000)
-        await asyncio.sleep(3.0)
+        await wait_alive_async(bus.session, "vertex_extractor", "pose_estimator")
         rss: list[tuple[float, int]] = []
         t0 = time.monotonic()
         seq = 0

@@ -6,19 +6,20 @@ import pytest
 
 from schemas import CameraPose, HumanoidPose, MarkerVertices
 from schemas.keys import HUMANOID_POSE, ODOM, VERTICES
-from services.camera import CameraModel
-from services.config import Geometry, parse_deployment
-from services.geometry import T_floor, inv_T
-from services.launcher import run_deployment
+from services.core.camera import CameraModel, undistort_px
+from services.core.geometry import T_floor, inv_T
+from services.core.mounts import Geometry
 from services.pose_estimator.estimate import (
     estimate_marker_pose,
     humanoid_floor_pose,
-    undistort_px,
     up_in_camera,
 )
 from services.pose_estimator.evaluate import compare, pose_cases, wrong_branches
 from services.pose_estimator.p4p import PoseError, ippe
+from services.runtime.config import parse_deployment
+from services.runtime.launcher import run_deployment
 from services.sim.scenes import marker_pose
+from tests.conftest import wait_alive_async
 
 CAM = CameraModel.paper()
 PTS = Geometry().marker_points()
@@ -49,7 +50,7 @@ def test_exact_recovery_with_distortion_and_skew():
 
 def test_both_branches_on_an_ambiguous_view_and_the_prior_chooses_right():
     # camera 25 cm above the marker looking down 30 deg: the mirror branch tilts the normal
-    from services.geometry import T_base_camera
+    from services.core.geometry import T_base_camera
     T_bc = T_base_camera(0.0, 0.45, math.radians(30))
     up = up_in_camera(T_bc)
     T_bh = T_floor(0.75, 0.0, math.radians(30))
@@ -127,7 +128,7 @@ def test_a_wrong_branch_at_high_noise_is_always_the_posteriors_choice():
 
 
 def test_continuity_prior_keeps_the_branch_through_a_noisy_sequence():
-    from services.geometry import T_base_camera
+    from services.core.geometry import T_base_camera
     T_bc = T_base_camera(0.0, 0.2, 0.0)  # marker height: mirror branches both level
     up = up_in_camera(T_bc)
     rng = np.random.default_rng(4)
@@ -162,7 +163,7 @@ def test_world_pose_composition_and_covariance():
 
 
 def test_floor_pose_covariance_matches_a_numerical_jacobian():
-    from services.geometry import floor_pose, make_T
+    from services.core.geometry import floor_pose, make_T
     from services.pose_estimator.p4p import exp_so3
     g = Geometry()
     T_wc = T_floor(0.1, -0.2, math.radians(20)) @ g.T_base_camera()
@@ -201,7 +202,7 @@ def test_service_publishes_world_pose_and_nulls_without_odometry(router, make_bu
     async def go():
         poses = bus.subscribe(HUMANOID_POSE, HumanoidPose, latest=False, queue=16)
         task = asyncio.create_task(run_deployment(dep, duration=15))
-        await asyncio.sleep(1.5)
+        await wait_alive_async(bus.session, "pose_estimator")
         bus.put(VERTICES, vertices(1, 10**18))
         p1 = await poses.recv(timeout=5)
         assert p1.x is None and "odometry" in p1.reason

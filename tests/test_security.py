@@ -8,12 +8,13 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from schemas import IrCommand, Keys
+from schemas import Command, IrCommand, Keys
 from schemas.keys import IR_COMMAND, SIM_IR
-from services.bus import Bus, ZenohSettings, open_session, zenoh_config
-from services.config import parse_deployment
-from services.launcher import run_deployment
-from tests.conftest import ROOT, free_port
+from services.runtime.bus import Bus
+from services.runtime.config import parse_deployment
+from services.runtime.launcher import run_deployment
+from services.runtime.session import ZenohSettings, open_session, zenoh_config
+from tests.conftest import ROOT, free_port, wait_alive_async
 
 
 @pytest.fixture(scope="module")
@@ -53,7 +54,7 @@ def test_a_client_without_a_certificate_is_refused(secure_router, certs: Path, t
 
 
 def test_secure_deployment_files_are_valid():
-    from services.config import load_deployment
+    from services.runtime.config import load_deployment
     for name in ("secure-robot.toml", "secure-laptop.toml"):
         dep = load_deployment(ROOT / "deploy" / name)
         assert dep.zenoh.config_file == ROOT / "deploy" / "certs" / name.replace(
@@ -83,10 +84,12 @@ def test_only_the_mission_controller_identity_drives_the_robot(secure_router, ce
             viewer, laptop = Bus(viewer_s, Keys(), "viewer"), Bus(laptop_s, Keys(), "laptop")
             heard = viewer.subscribe(SIM_IR, IrCommand, latest=False, queue=32)
             task = asyncio.create_task(run_deployment(robot, duration=15))
-            await asyncio.sleep(2.5)
-            viewer.put(IR_COMMAND, IrCommand(command="walk_forward"))  # authenticated, not allowed
+            await wait_alive_async(laptop_s, "ir_transmitter")
+            # authenticated, not allowed:
+            viewer.put(IR_COMMAND, IrCommand(command=Command.WALK_FORWARD))
             await asyncio.sleep(0.5)
-            laptop.put(IR_COMMAND, IrCommand(command="turn_left"))     # the controller's identity
+            # the controller's identity:
+            laptop.put(IR_COMMAND, IrCommand(command=Command.TURN_LEFT))
             await asyncio.sleep(1.0)
             got = [m.command.value for m in iter(heard.get_nowait, None)]
             task.cancel()
@@ -106,7 +109,7 @@ def test_the_vision_identity_cannot_command_the_humanoid(secure_router, certs: P
         frames: list[bytes] = []
         sub2 = b.declare_subscriber("shepherd/camera/frame", lambda s: frames.append(b"x"))
         time.sleep(0.5)
-        a.put("shepherd/ir/command", IrCommand(command="stop").model_dump_json())
+        a.put("shepherd/ir/command", IrCommand(command=Command.STOP).model_dump_json())
         a.put("shepherd/camera/frame", b"pixels")
         time.sleep(0.5)
         sub.undeclare()

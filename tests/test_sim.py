@@ -7,14 +7,15 @@ import numpy as np
 import pytest
 
 from schemas import Command
-from services.camera import CameraModel
-from services.config import Geometry, parse_deployment
-from services.launcher import run_deployment
+from services.core.camera import CameraModel
+from services.core.mounts import Geometry
+from services.core.world import CircleObstacle, PolygonObstacle, World
+from services.runtime.config import parse_deployment
+from services.runtime.launcher import run_deployment
 from services.sim.camera_robot import CameraRobot, CameraRobotParams
 from services.sim.humanoid import Humanoid, HumanoidParams
 from services.sim.render import RenderStyle, coverage_mask, render_view
 from services.sim.scenes import marker_pose, random_views
-from services.sim.world import CircleObstacle, PolygonObstacle, World
 from tests.conftest import run_cli
 
 
@@ -141,11 +142,12 @@ def test_sim_snapshot_of_a_fresh_scene(tmp_path: Path):
     out = run_cli("sim", "snapshot", "--fresh", "--out", str(tmp_path / "f.png"))
     assert out.returncode == 0, out.stderr
     img = cv2.imread(str(tmp_path / "f.png"))
-    assert img.shape == (480, 640, 3)
+    assert img is not None and img.shape == (480, 640, 3)
     magenta = (img[..., 0] > 200) & (img[..., 2] > 200) & (img[..., 1] < 60)
     assert magenta.sum() > 5000  # the rhombus fills about 5% of the image at 25 cm
 
 
+@pytest.mark.slow
 def test_frame_source_publishes_an_image_folder_and_survives_a_missing_device(
         tmp_path: Path, router, make_bus):
     folder = tmp_path / "imgs"

@@ -2,7 +2,11 @@
 
 import re
 
+import pytest
+
 from tests.conftest import endpoint, spawn_cli
+
+pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
 
 
 def test_soak_mode_goes_back_and_forth_and_reports_memory():

@@ -7,8 +7,8 @@ import pytest
 
 from schemas import MarkerVertices
 from schemas.keys import FRAME, VERTICES
-from services.config import parse_deployment
-from services.launcher import run_deployment
+from services.runtime.config import parse_deployment
+from services.runtime.launcher import run_deployment
 from services.sim.scenes import random_views
 from services.vertex_extractor.extractor import RhombusExtractor
 from services.vertex_extractor.lines import best_split
@@ -45,8 +45,8 @@ def test_found_in_at_least_97_percent_of_views(accuracy_run):
 def test_no_detection_without_a_marker():
     """Frames with the humanoid's body, clutter and pink distractors, but no marker."""
     ex = RhombusExtractor()
-    from services.camera import CameraModel
-    from services.config import Geometry
+    from services.core.camera import CameraModel
+    from services.core.mounts import Geometry
     from services.sim.render import RenderStyle, render_view
     from services.sim.scenes import marker_pose
     cam, g = CameraModel.paper(), Geometry()
@@ -104,7 +104,7 @@ def _bad_frames():
     v = r.vertices_px
     cx, cy = v.mean(0).astype(int)
     hidden[cy - 60:cy + 5, cx - 8:cx + 70] = (40, 40, 40)
-    yield "partly hidden", hidden, ""
+    yield "partly hidden", hidden, "do not make a convex quadrilateral"
     small = render_marker(2.5)
     yield "too small", small.image, "small"
 

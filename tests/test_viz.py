@@ -10,15 +10,18 @@ import time
 
 import cv2
 import numpy as np
+import pytest
 
 from schemas import HumanoidPose, MarkerInCamera, MarkerVertices
 from schemas.keys import HUMANOID_POSE, VERTICES
-from services.config import parse_deployment
-from services.launcher import run_deployment
-from services.sim.world import CircleObstacle, World
-from services.viz.convert import annotations, floor_scene, image
+from services.core.world import CircleObstacle, World
+from services.runtime.config import parse_deployment
+from services.runtime.launcher import run_deployment
+from services.viz.convert import floor_scene, image, image_annotations
 from tests.conftest import free_port
 from tests.helpers.fake_frames import publish_frame, render_marker
+
+pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
 
 VERTS = MarkerVertices(seq=1, stamp_ns=5, found=True, vertices_px=((10, 20), (20, 10),
                                                                    (30, 20), (20, 30)),
@@ -31,10 +34,10 @@ POSE = HumanoidPose(seq=1, stamp_ns=5, x=0.3, y=0.0, yaw=0.2,
 
 def test_conversions():
     # Foxglove's messages are opaque; their protobuf encodings carry what we put in
-    ann = annotations(VERTS).encode()
+    ann = image_annotations(VERTS).encode()
     for u, v in ((10, 20), (20, 10), (30, 20), (20, 30)):  # + 0.5: Foxglove's pixel origin
         assert struct.pack("<d", u + 0.5) in ann and struct.pack("<d", v + 0.5) in ann
-    miss = annotations(MarkerVertices(seq=2, stamp_ns=5, found=False, reason="too dark"))
+    miss = image_annotations(MarkerVertices(seq=2, stamp_ns=5, found=False, reason="too dark"))
     assert b"no marker: too dark" in miss.encode()
     data = image(np.zeros((48, 64, 3), np.uint8), 5).encode()
     start = data.index(b"\xff\xd8")

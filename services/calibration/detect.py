@@ -235,7 +235,8 @@ def detect_squares(grey: np.ndarray, n_rows: int = 8, n_cols: int = 8) -> np.nda
     # bottom-left square is row 0, column 0 (Zhang's Model.txt: rows go up the image)
     corners_img = np.array([centres[np.argmax(y - x)], centres[np.argmax(x + y)],
                             centres[np.argmax(x - y)], centres[np.argmin(x + y)]])
-    grid = np.float64([[0, 0], [n_cols - 1, 0], [n_cols - 1, n_rows - 1], [0, n_rows - 1]])
+    grid = np.array([[0, 0], [n_cols - 1, 0], [n_cols - 1, n_rows - 1], [0, n_rows - 1]],
+                    np.float64)
     Hg = cv2.getPerspectiveTransform(corners_img.astype(np.float32), grid.astype(np.float32))
     gc = cv2.perspectiveTransform(centres.reshape(-1, 1, 2), Hg).reshape(-1, 2)
     idx = np.round(gc).astype(int)

@@ -13,7 +13,7 @@ import numpy as np
 from services.calibration.detect import DetectionError, detect
 from services.calibration.pattern import PatternSpec
 from services.calibration.zhang import Calibration, CalibrationError, calibrate
-from services.camera import CameraModel
+from services.core.camera import CameraModel
 
 
 @dataclass(frozen=True)
@@ -66,7 +66,8 @@ def run(paths: list[Path], spec: PatternSpec, *, skew: bool = True, log=print
         raise CalibrationError(f"only {len(good)} of {len(views)} views usable; need at "
                                "least 3")
     model = spec.model_points()
-    return calibrate([model] * len(good), [v.points_px for v in good], skew=skew), views, size
+    points = [v.points_px for v in good if v.points_px is not None]
+    return calibrate([model] * len(points), points, skew=skew), views, size
 
 
 def to_toml(cal: Calibration, size: tuple[int, int], views: list[ViewResult],
@@ -147,6 +148,7 @@ def main(paths: list[Path], spec_text: str, out: Path, plots: Path | None, skew:
         plots.mkdir(parents=True, exist_ok=True)
         good = [v for v in views if v.points_px is not None]
         for v, r in zip(good, cal.residuals_px, strict=True):
+            assert v.points_px is not None
             residual_plot(plots / f"{v.path.stem}_residuals.png", v.path, v.points_px, r)
         print(f"wrote {len(good)} residual plots to {plots}")
     return 0

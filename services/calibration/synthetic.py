@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from services.camera import CameraModel
+from services.core.camera import CameraModel
 
 
 def pixel_rays(camera: CameraModel, step: int = 4, supersample: int = 1) -> np.ndarray:
@@ -17,14 +17,14 @@ def pixel_rays(camera: CameraModel, step: int = 4, supersample: int = 1) -> np.n
     gx, gy = np.meshgrid(xs, ys)
     px = np.column_stack([(gx.ravel() + 0.5) / supersample - 0.5,
                           (gy.ravel() + 0.5) / supersample - 0.5])
-    from services.pose_estimator.estimate import undistort_px
+    from services.core.camera import undistort_px
     coarse = undistort_px(camera, px).reshape(len(ys), len(xs), 2).astype(np.float32)
     full = cv2.resize(coarse, (len(xs) * step, len(ys) * step), interpolation=cv2.INTER_LINEAR)
     # resize maps sample centres: its pixel j holds coarse position j / step - (step - 1) /
     # (2 step); shift by (step - 1) / 2 so that pixel j holds coarse position j / step
     # (warpAffine's M maps source to destination: dst(x) = src(x + shift))
     shift = (step - 1) / 2
-    M = np.float32([[1, 0, -shift], [0, 1, -shift]])
+    M = np.array([[1, 0, -shift], [0, 1, -shift]], np.float32)
     full = cv2.warpAffine(full, M, (full.shape[1], full.shape[0]), flags=cv2.INTER_LINEAR,
                           borderMode=cv2.BORDER_REPLICATE)
     return full[:H, :W]
@@ -65,7 +65,7 @@ def board_pose(distance_m: float, tilt_x_rad: float, tilt_y_rad: float, roll_rad
                camera: CameraModel) -> np.ndarray:
     """T_camera_board for a board whose point ``centre_m`` is seen at image offset
     ``offset_px`` from the principal point, ``distance_m`` away, tilted and rolled."""
-    from services.geometry import make_T, rot_x, rot_y, rot_z
+    from services.core.geometry import make_T, rot_x, rot_y, rot_z
     R = rot_z(roll_rad) @ rot_x(tilt_x_rad) @ rot_y(tilt_y_rad)
     ray = np.linalg.solve(camera.K, [camera.K[0, 2] + offset_px[0],
                                      camera.K[1, 2] + offset_px[1], 1.0])

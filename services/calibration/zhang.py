@@ -1,6 +1,6 @@
 """Zhang's planar calibration (Zhang, "A flexible new technique for camera calibration",
 IEEE TPAMI 22(11), 2000; MSR-TR-98-71), written out from the paper's formulas
-(../shared/paper/implementation-notes.md, section 3).
+(the implementation notes beside the paper, section 3).
 
 Steps: one homography per view (normalised DLT, refined by Levenberg-Marquardt); the linear
 system V b = 0 for B = A^-T A^-1; the intrinsics (alpha, beta, gamma, u0, v0) in closed form;
@@ -171,7 +171,7 @@ def calibrate(models: list[np.ndarray], images: list[np.ndarray], *, skew: bool 
     if not skew:
         A[0, 1] = 0.0
     RT = [extrinsics(A, H) for H in Hs]
-    k = radial_distortion(A, [r for r, _ in RT], [t for _, t in RT], models3, images)
+    k0 = radial_distortion(A, [r for r, _ in RT], [t for _, t in RT], models3, images)
     rvecs = [cv2.Rodrigues(R)[0].ravel() for R, _ in RT]
     tvecs = [t for _, t in RT]
     n_views = len(models3)
@@ -187,7 +187,7 @@ def calibrate(models: list[np.ndarray], images: list[np.ndarray], *, skew: bool 
         return np.concatenate([(project(Ap, kp, cv2.Rodrigues(r)[0], t, M) - m).ravel()
                                for r, t, M, m in zip(rv, tv, models3, images, strict=True)])
 
-    p0 = np.concatenate([[A[0, 0], A[1, 1], A[0, 1], A[0, 2], A[1, 2], k[0], k[1]],
+    p0 = np.concatenate([[A[0, 0], A[1, 1], A[0, 1], A[0, 2], A[1, 2], k0[0], k0[1]],
                          *[np.concatenate([r, t]) for r, t in zip(rvecs, tvecs, strict=True)]])
     if refine:
         sol = least_squares(residuals, p0, method="lm", x_scale="jac")
@@ -195,7 +195,7 @@ def calibrate(models: list[np.ndarray], images: list[np.ndarray], *, skew: bool 
         J = sol.jac
     else:
         p = p0
-        J = None
+        J = None  # no refinement: no Jacobian
     A, k, rvecs, tvecs = unpack(p)
     res = residuals(p).reshape(-1, 2)
     per_view, out_res, i = [], [], 0

@@ -15,21 +15,34 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
-from services.geometry import wrap_angle
-from services.sim.world import World
+from services.core.geometry import wrap_angle
+from services.core.mounts import Geometry
+from services.core.world import World
 
 
-@dataclass(frozen=True)
-class PlannerParams:
-    distance_m: float = 0.25                      # d: optical centre to marker centre
-    critical_angle_rad: float = math.radians(50)  # theta
-    release_rad: float = math.radians(15)         # hold released below this view angle
-    camera_forward_m: float = 0.0                 # optical centre ahead of the base origin
-    marker_back_offset_m: float = 0.05
-    robot_radius_m: float = 0.08
-    humanoid_radius_m: float = 0.09
-    clearance_m: float = 0.02
+class PlannerParams(BaseModel):
+    """The planner's parameters (the service's settings are these plus its loop's); the only
+    place their defaults are defined. The mounts come from the deployment's geometry."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    distance_m: float = Field(default=0.25, gt=0.0,
+                              description="d: optical centre to marker centre (m)")
+    critical_angle_deg: float = Field(default=50.0, gt=0.0, lt=90.0, description="theta")
+    release_deg: float = Field(default=15.0, ge=0.0, lt=90.0,
+                               description="a hold is released below this view angle")
+    robot_radius_m: float = Field(default=0.08, gt=0.0)
+    humanoid_radius_m: float = Field(default=0.09, gt=0.0)
+    clearance_m: float = Field(default=0.02, ge=0.0)
+
+    @property
+    def critical_angle_rad(self) -> float:
+        return math.radians(self.critical_angle_deg)
+
+    @property
+    def release_rad(self) -> float:
+        return math.radians(self.release_deg)
 
 
 @dataclass(frozen=True)
@@ -44,11 +57,12 @@ class Plan:
 class CameraPlanner:
     params: PlannerParams = field(default_factory=PlannerParams)
     world: World = field(default_factory=World)
+    mounts: Geometry = field(default_factory=Geometry)
     holding: bool = False
 
     def marker_centre(self, humanoid: tuple[float, float, float]) -> np.ndarray:
         x, y, yaw = humanoid
-        b = self.params.marker_back_offset_m
+        b = self.mounts.marker_back_offset_m
         return np.array([x - b * math.cos(yaw), y - b * math.sin(yaw)])
 
     def view_angle(self, humanoid: tuple[float, float, float],
@@ -64,12 +78,12 @@ class CameraPlanner:
         return math.acos(max(-1.0, min(1.0, float(normal @ d) / n)))
 
     def _optical_centre(self, base: tuple[float, float, float]) -> np.ndarray:
-        f = self.params.camera_forward_m
+        f = self.mounts.camera_forward_m
         return np.array([base[0] + f * math.cos(base[2]), base[1] + f * math.sin(base[2])])
 
     def _base_for(self, optical: np.ndarray, marker: np.ndarray) -> tuple[float, float, float]:
         yaw = math.atan2(marker[1] - optical[1], marker[0] - optical[0])
-        f = self.params.camera_forward_m
+        f = self.mounts.camera_forward_m
         return (float(optical[0] - f * math.cos(yaw)), float(optical[1] - f * math.sin(yaw)),
                 yaw)
 

@@ -4,9 +4,7 @@ does not jitter with pose noise."""
 
 from __future__ import annotations
 
-import asyncio
 import math
-import time
 from dataclasses import dataclass
 
 from pydantic import Field
@@ -14,20 +12,22 @@ from pydantic import Field
 from schemas import CameraGoal, CameraPose, Hold, HumanoidPose
 from schemas.keys import CAMERA_GOAL, HUMANOID_POSE, MISSION_HOLD, ODOM
 from services.camera_planner.planner import CameraPlanner, PlannerParams
-from services.config import ServiceSettings
-from services.geometry import wrap_angle
+from services.core.geometry import wrap_angle
+from services.runtime.clock import Ticker, age_s
+from services.runtime.config import ServiceSettings
+from services.runtime.context import ServiceContext
 
 Pose = tuple[float, float, float]
 
 
-class Settings(ServiceSettings):
-    distance_m: float = Field(default=0.25, gt=0.0, description="d")
-    critical_angle_deg: float = Field(default=50.0, gt=0.0, lt=90.0, description="theta")
-    release_deg: float = Field(default=15.0, ge=0.0, lt=90.0)
+class Settings(ServiceSettings, PlannerParams):
+    """The planner's parameters (``PlannerParams``) and the service loop's own."""
+
     rate_hz: float = Field(default=5.0, gt=0.0)
     smoothing: float = Field(default=0.5, gt=0.0, le=1.0, description="weight of a new goal")
     deadband_m: float = Field(default=0.005, ge=0.0)
-    pose_timeout_s: float = Field(default=1.0, gt=0.0)
+    pose_timeout_s: float = Field(default=1.0, gt=0.0,
+                                  description="plan only from a pose that arrived this recently")
 
 
 @dataclass
@@ -55,30 +55,27 @@ class GoalFilter:
         return None
 
 
-async def main(ctx, config: Settings) -> None:
-    bus, dep, log = ctx.bus, ctx.deployment, ctx.log
-    g = dep.geometry
-    planner = CameraPlanner(PlannerParams(
-        distance_m=config.distance_m, critical_angle_rad=math.radians(config.critical_angle_deg),
-        release_rad=math.radians(config.release_deg), camera_forward_m=g.camera_forward_m,
-        marker_back_offset_m=g.marker_back_offset_m), dep.world)
+async def main(ctx: ServiceContext, config: Settings) -> None:
+    bus, log = ctx.bus, ctx.log
+    planner = CameraPlanner(config.part(PlannerParams), ctx.world, ctx.geometry)
     poses = bus.subscribe(HUMANOID_POSE, HumanoidPose, latest=True)
     odom = bus.subscribe(ODOM, CameraPose, latest=True)
     goals = GoalFilter(config.smoothing, config.deadband_m)
     humanoid: Pose | None = None
     camera: Pose | None = None
-    pose_mono = 0.0
+    ticker = Ticker(1.0 / config.rate_hz)
     try:
         while True:
-            if (p := poses.get_nowait()) is not None and p.x is not None:
-                humanoid, pose_mono = (p.x, p.y, p.yaw), time.monotonic()  # type: ignore
+            if (p := poses.get_nowait()) is not None and p.x is not None and p.y is not None \
+                    and p.yaw is not None:
+                humanoid = (p.x, p.y, p.yaw)
             if (o := odom.get_nowait()) is not None:
                 camera = (o.x, o.y, o.yaw)
-            fresh = humanoid is not None and time.monotonic() - pose_mono < config.pose_timeout_s
-            if fresh and camera is not None:
+            fresh = age_s(poses.last_received_ns) < config.pose_timeout_s
+            if fresh and humanoid is not None and camera is not None:
                 try:
                     was_holding = goals.holding
-                    plan = planner.plan(humanoid, camera)  # type: ignore[arg-type]
+                    plan = planner.plan(humanoid, camera)
                     if (goal := goals.update(plan.goal, plan.hold)) is not None:
                         bus.put(CAMERA_GOAL, CameraGoal(x=goal[0], y=goal[1], yaw=goal[2],
                                                         reason=plan.reason))
@@ -89,7 +86,7 @@ async def main(ctx, config: Settings) -> None:
                 except Exception:
                     log.exception("planning failed for humanoid %s, camera %s", humanoid, camera)
                     goals = GoalFilter(config.smoothing, config.deadband_m)
-            await asyncio.sleep(1.0 / config.rate_hz)
+            await ticker.wait()
     finally:
         if goals.holding:
             bus.put(MISSION_HOLD, Hold(hold=False, reason="camera planner stopped"))

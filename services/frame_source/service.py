@@ -12,9 +12,11 @@ import time
 import cv2
 from pydantic import Field
 
-from services.bus import encode_frame
-from services.config import ServiceSettings
 from services.frame_source.sources import SourceEndedError, SourceLostError, open_source
+from services.runtime.clock import Ticker
+from services.runtime.config import ServiceSettings
+from services.runtime.context import ServiceContext
+from services.runtime.frames import encode_frame
 
 
 class Settings(ServiceSettings):
@@ -27,7 +29,7 @@ class Settings(ServiceSettings):
     retry_s: float = Field(default=1.0, gt=0.0)
 
 
-async def main(ctx, config: Settings) -> None:
+async def main(ctx: ServiceContext, config: Settings) -> None:
     bus, log = ctx.bus, ctx.log
     seq = 0
     period = 1.0 / config.fps
@@ -40,7 +42,7 @@ async def main(ctx, config: Settings) -> None:
             continue
         log.info("publishing %s at %.1f fps", source.description, config.fps)
         try:
-            next_tick = time.monotonic()
+            ticker = Ticker(period)
             while True:
                 image = await asyncio.to_thread(source.read)
                 stamp = time.time_ns()
@@ -50,10 +52,7 @@ async def main(ctx, config: Settings) -> None:
                 header, payload = encode_frame(image, seq, stamp, config.jpeg_quality)
                 bus.put_frame(header, payload)
                 seq += 1
-                next_tick += period
-                await asyncio.sleep(max(0.0, next_tick - time.monotonic()))
-                if next_tick < time.monotonic() - 1.0:
-                    next_tick = time.monotonic()
+                await ticker.wait()
         except SourceEndedError as err:
             log.info("%s; frame source done after %d frames", err, seq)
             return

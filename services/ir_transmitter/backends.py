@@ -17,7 +17,7 @@ import time
 from collections.abc import Callable
 from typing import Any, Protocol
 
-from schemas import Command, IrCommand
+from schemas import ROBOSAPIEN_CODES, Command, IrCommand
 
 log = logging.getLogger("shepherd.ir_transmitter")
 
@@ -46,7 +46,8 @@ class LogBackend:
         self.sent: list[IrCommand] = []
 
     def send(self, command: IrCommand) -> None:
-        log.info("IR (dry run): %s 0x%02X", command.command.value, command.code)
+        log.info("IR (dry run): %s 0x%02X", command.command.value,
+                 ROBOSAPIEN_CODES[command.command])
         self.sent.append(command)
         del self.sent[:-100]
 
@@ -112,7 +113,7 @@ class SerialBackend:
             if time.monotonic() - self._last_try < self.reopen_s or not self._open():
                 raise BackendError(f"serial port {self.port} is disconnected")
         try:
-            self._ser.write(bytes([command.code]))
+            self._ser.write(bytes([ROBOSAPIEN_CODES[command.command]]))
             self._ser.flush()
         except (serial.SerialException, OSError) as err:
             self.close()

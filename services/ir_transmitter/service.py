@@ -11,6 +11,7 @@ is sent only if it is younger than ``fresh_s``. ``stop`` is sent at shutdown.
 from __future__ import annotations
 
 import asyncio
+import logging
 import time
 from typing import Any, Literal
 
@@ -18,8 +19,9 @@ from pydantic import Field
 
 from schemas import Command, IrBackendRequest, IrBackendStatus, IrCommand
 from schemas.keys import IR_BACKEND, IR_COMMAND, SIM_IR
-from services.config import ServiceSettings
 from services.ir_transmitter.backends import BackendError, IrBackend, make_backend
+from services.runtime.config import ServiceSettings
+from services.runtime.context import ServiceContext
 
 
 class Settings(ServiceSettings):
@@ -30,6 +32,11 @@ class Settings(ServiceSettings):
     fresh_s: float = Field(default=1.0, gt=0.0)
     heartbeat_s: float = Field(default=0.15, gt=0.0, le=0.3,
                                description="heartbeat to the firmware's 0.4 s watchdog")
+    deadman_s: float = Field(default=0.5, ge=0.0, description=(
+        "dead-man: send stop when the humanoid moves and no command (the controller's "
+        "keepalive included) came for this long; 0 turns it off"))
+    controller: str = Field(default="mission_controller", description=(
+        "the service whose liveliness token going away sends stop at once ('' for none)"))
 
 
 class Transmitter:
@@ -37,7 +44,7 @@ class Transmitter:
 
     def __init__(self, backend: IrBackend, config: Settings) -> None:
         self.backend, self.config = backend, config
-        self.sent = self.failed = self.coalesced = 0
+        self.sent = self.failed = self.coalesced = self.deadman_stops = 0
         self.last_error = ""
         self._last: tuple[Command, float] | None = None
         self._pending: IrCommand | None = None  # latest command that failed to go out
@@ -45,6 +52,7 @@ class Transmitter:
     def status(self) -> IrBackendStatus:
         return IrBackendStatus(backend=self.backend.name, options=self.backend.options,
                                sent=self.sent, failed=self.failed, coalesced=self.coalesced,
+                               deadman_stops=self.deadman_stops,
                                connected=self.backend.connected, last_error=self.last_error)
 
     async def send(self, cmd: IrCommand) -> bool:
@@ -92,13 +100,26 @@ class Transmitter:
         if reconnect is not None and await asyncio.to_thread(reconnect):
             await self.send(cmd)
 
+    @property
+    def moving(self) -> bool:
+        """The last command that went out set the humanoid moving."""
+        return self._last is not None and self._last[0] is not Command.STOP
+
+    async def deadman_stop(self, why: str) -> None:
+        """Stop the humanoid because its controller is gone or silent."""
+        self.deadman_stops += 1
+        logging.getLogger("shepherd.ir_transmitter").warning("dead-man: %s; sending stop", why)
+        if not await self.send(IrCommand(command=Command.STOP)):
+            logging.getLogger("shepherd.ir_transmitter").error(
+                "dead-man stop not sent: %s", self.last_error)
+
     def swap(self, backend: IrBackend) -> None:
         old, self.backend = self.backend, backend
         self._last = None
         old.close()
 
 
-async def main(ctx, config: Settings) -> None:
+async def main(ctx: ServiceContext, config: Settings) -> None:
     bus, log = ctx.bus, ctx.log
 
     def publish_sim(cmd: IrCommand) -> None:
@@ -109,18 +130,23 @@ async def main(ctx, config: Settings) -> None:
     commands = bus.subscribe(IR_COMMAND, IrCommand, latest=False, queue=64)
     requests = bus.subscribe(IR_BACKEND, IrBackendRequest, latest=False, queue=8)
     bus.declare_queryable(IR_BACKEND, tx.status)
-    pending: set[asyncio.Future] = set()
-    last_beat = time.monotonic()
+    tokens = bus.subscribe_liveliness(bus.keys.alive(config.controller)) \
+        if config.controller else None
+    pending: set[asyncio.Future[Any]] = set()
+    last_beat = last_command = time.monotonic()
     try:
         while True:
-            cmd_task = asyncio.ensure_future(commands.recv())
-            req_task = asyncio.ensure_future(requests.recv())
+            cmd_task: asyncio.Future[IrCommand] = asyncio.ensure_future(commands.recv())
+            req_task: asyncio.Future[IrBackendRequest] = asyncio.ensure_future(requests.recv())
             pending = {cmd_task, req_task}
             done, _ = await asyncio.wait(pending, timeout=config.heartbeat_s,
                                          return_when=asyncio.FIRST_COMPLETED)
             for task in (cmd_task, req_task):
                 if task not in done:
                     task.cancel()
+            while tokens is not None and (token := tokens.get_nowait()) is not None:
+                if not token[1] and tx.moving:
+                    await tx.deadman_stop(f"{config.controller}'s liveliness token went away")
             # a cancelled recv() may have taken nothing; results of finished ones are used
             if req_task in done:
                 req = req_task.result()
@@ -134,10 +160,14 @@ async def main(ctx, config: Settings) -> None:
                     tx.swap(new)
             if cmd_task in done:
                 cmd = cmd_task.result()
+                last_command = time.monotonic()
                 if not await tx.send(cmd):
                     log.warning("IR %s not sent: %s", cmd.command.value, tx.last_error)
             else:
                 await tx.retry_pending()
+            silent_s = time.monotonic() - last_command
+            if config.deadman_s and tx.moving and silent_s > config.deadman_s:
+                await tx.deadman_stop(f"no command for {1000 * silent_s:.0f} ms")
             if time.monotonic() - last_beat >= config.heartbeat_s:
                 await tx.heartbeat()
                 last_beat = time.monotonic()

@@ -7,44 +7,36 @@ decides a command and publishes it on ``ir/command`` when it changes (and every
 
 from __future__ import annotations
 
-import asyncio
-import math
 import time
 
 from pydantic import Field
 
 from schemas import Command, Hold, HumanoidPose, IrCommand, MissionGoal, MissionState, Phase
 from schemas.keys import HUMANOID_POSE, IR_COMMAND, MISSION_GOAL, MISSION_HOLD, MISSION_STATE
-from services.config import ServiceSettings
 from services.mission_controller.controller import ControlParams, HeuristicController
+from services.runtime.clock import Ticker, age_s
+from services.runtime.config import ServiceSettings
+from services.runtime.context import ServiceContext
 
 
-class Settings(ServiceSettings):
+class Settings(ServiceSettings, ControlParams):
+    """The controller's parameters (``ControlParams``) and the service loop's own."""
+
     rate_hz: float = Field(default=10.0, gt=0.0, le=200.0)
     waypoints: list[tuple[float, float]] = Field(default_factory=list,
                                                  description="initial mission, world m")
-    goal_tolerance_m: float = Field(default=0.01, gt=0.0, description="l")
-    turn_threshold_deg: float = Field(default=15.0, gt=0.0, lt=180.0, description="k")
-    turn_release_deg: float = Field(default=5.0, gt=0.0, lt=180.0)
-    stop_lead_m: float = Field(default=0.012, ge=0.0,
-                               description="stop this early: IR delay x walking speed")
-    pose_timeout_s: float = Field(default=0.3, gt=0.0, description="stop when the pose is older")
-    keepalive_s: float = Field(default=1.0, gt=0.0)
+    keepalive_s: float = Field(default=0.2, gt=0.0, description=(
+        "repeat the current command this often: the IR transmitter's dead-man (0.5 s) "
+        "stops the humanoid when the repeats stop"))
     hold_timeout_s: float = Field(default=2.0, gt=0.0, description="a hold expires unrenewed")
     exit_when_done: bool = Field(default=False, description="stop the deployment when done")
     loop: bool = Field(default=False, description="when done, run the waypoints again in "
                        "reverse order (soak tests)")
 
 
-def params_from(config: Settings) -> ControlParams:
-    return ControlParams(math.radians(config.turn_threshold_deg),
-                         math.radians(config.turn_release_deg), config.goal_tolerance_m,
-                         config.stop_lead_m, config.pose_timeout_s)
-
-
-async def main(ctx, config: Settings) -> None:
+async def main(ctx: ServiceContext, config: Settings) -> None:
     bus, log = ctx.bus, ctx.log
-    ctrl = HeuristicController(params_from(config))
+    ctrl = HeuristicController(config.part(ControlParams))
     ctrl.set_waypoints(config.waypoints)
     poses = bus.subscribe(HUMANOID_POSE, HumanoidPose, latest=True)
     goals = bus.subscribe(MISSION_GOAL, MissionGoal, latest=False, queue=8)
@@ -52,10 +44,9 @@ async def main(ctx, config: Settings) -> None:
     last_cmd: Command | None = None
     last_sent = 0.0
     pose: tuple[float, float, float] | None = None
-    pose_mono = 0.0
-    hold, hold_mono = False, 0.0
+    hold = False
     origin: tuple[float, float] | None = None  # where the current leg started (loop)
-    period = 1.0 / config.rate_hz
+    ticker = Ticker(1.0 / config.rate_hz)
 
     def send(cmd: Command) -> None:
         nonlocal last_cmd, last_sent
@@ -67,30 +58,30 @@ async def main(ctx, config: Settings) -> None:
     try:
         while True:
             while (g := goals.get_nowait()) is not None:
-                ctrl.set_waypoints([tuple(w) for w in g.waypoints])
+                ctrl.set_waypoints([(w[0], w[1]) for w in g.waypoints])
                 origin = (pose[0], pose[1]) if pose is not None else None
-                ctrl.params = ControlParams(**{**ctrl.params.__dict__,
-                                               "goal_tolerance_m": g.tolerance_m})
+                if g.tolerance_m is not None:
+                    ctrl.params = ctrl.params.model_copy(
+                        update={"goal_tolerance_m": g.tolerance_m})
                 log.info("new mission: %d waypoints", len(g.waypoints))
-            if (p := poses.get_nowait()) is not None and p.x is not None:
-                pose = (p.x, p.y, p.yaw)  # type: ignore[assignment]
+            if (p := poses.get_nowait()) is not None and p.x is not None and p.y is not None \
+                    and p.yaw is not None:
+                pose = (p.x, p.y, p.yaw)
                 if origin is None:
-                    origin = (p.x, p.y)  # type: ignore[assignment]
-                pose_mono = time.monotonic() - max(0.0, (time.time_ns() - p.stamp_ns) / 1e9)
+                    origin = (p.x, p.y)
             if (h := holds.get_nowait()) is not None:
-                hold, hold_mono = h.hold, time.monotonic()
-            now = time.monotonic()
-            if hold and now - hold_mono > config.hold_timeout_s:
+                hold = h.hold
+            if hold and age_s(holds.last_received_ns) > config.hold_timeout_s:
                 hold = False
-            was_done = ctrl._phase is Phase.DONE
+            was_done = ctrl.phase is Phase.DONE
             try:
-                d = ctrl.decide(pose, now - pose_mono if pose else math.inf, hold)
+                d = ctrl.decide(pose, age_s(poses.last_received_ns), hold)
             except Exception:
                 log.exception("control step failed; stopping the humanoid")
                 send(Command.STOP)
-                await asyncio.sleep(period)
+                await ticker.wait()
                 continue
-            if d.command is not last_cmd or now - last_sent >= config.keepalive_s:
+            if d.command is not last_cmd or time.monotonic() - last_sent >= config.keepalive_s:
                 send(d.command)
             bus.put(MISSION_STATE, MissionState(phase=d.phase, waypoint_index=d.waypoint_index,
                                                 distance_m=d.distance_m,
@@ -105,6 +96,6 @@ async def main(ctx, config: Settings) -> None:
                     back = [*ctrl.waypoints[-2::-1], origin]
                     origin = ctrl.waypoints[-1]
                     ctrl.set_waypoints(back)
-            await asyncio.sleep(period)
+            await ticker.wait()
     finally:
         bus.put(IR_COMMAND, IrCommand(command=Command.STOP))

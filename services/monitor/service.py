@@ -11,7 +11,6 @@ time) into the run folder, prints the summary beside the paper's result, and, wi
 
 from __future__ import annotations
 
-import asyncio
 import csv
 import math
 import sys
@@ -25,8 +24,10 @@ from pydantic import Field
 
 from schemas import Hold, HumanoidPose, MissionState, Phase, SimTruth
 from schemas.keys import HUMANOID_POSE, MISSION_HOLD, MISSION_STATE, SIM_TRUTH
-from services.config import ServiceSettings
-from services.plot import line_plot
+from services.monitor.plot import line_plot
+from services.runtime.clock import Ticker
+from services.runtime.config import ServiceSettings
+from services.runtime.context import ServiceContext
 
 PAPER_GOAL_CM = (0.0, 4.7, 60.0)
 PAPER_REACHED_CM = (3.3, 4.8, 58.2)
@@ -143,7 +144,7 @@ def summary(rec: Recorder, goal: tuple[float, float] | None) -> tuple[str, float
     return "\n".join(lines), final_err
 
 
-async def main(ctx, config: Settings) -> None:
+async def main(ctx: ServiceContext, config: Settings) -> None:
     bus, log, dep = ctx.bus, ctx.log, ctx.deployment
     goal = config.goal
     mc = dep.settings.get("mission_controller")
@@ -162,6 +163,7 @@ async def main(ctx, config: Settings) -> None:
     n_poses = 0
     state: MissionState | None = None
     tty = sys.stderr.isatty()
+    ticker = Ticker(0.05)
     try:
         while True:
             while (m := truth.get_nowait()) is not None:
@@ -200,7 +202,7 @@ async def main(ctx, config: Settings) -> None:
                 ok = err is not None and err <= config.success_tolerance_m
                 ctx.request_exit(0 if ok else 1)
                 return
-            await asyncio.sleep(0.05)
+            await ticker.wait()
     finally:
         if folder and (rec.truth or rec.poses):
             rec.write(folder)

@@ -8,12 +8,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
-from services.camera import CameraModel
-from services.geometry import inv_T
-from services.jit import njit
+from services.core.camera import CameraModel, undistort_px
+from services.core.geometry import inv_T
+from services.core.jit import njit
+from services.core.projection import project_px, rms_px
 from services.pose_estimator.p4p import (
     OK,
     PoseError,
@@ -21,7 +21,6 @@ from services.pose_estimator.p4p import (
     map_pose,
     raise_for,
 )
-from services.projection import normalise_px, project_px, rms_px
 
 
 @dataclass(frozen=True)
@@ -33,21 +32,6 @@ class MarkerPose:
     covariance: np.ndarray              # 6x6 over (rotation vector rad, translation m)
     candidates: tuple[np.ndarray, ...]  # 4x4 each, IPPE's two, best-reprojection first
     chosen: int                         # index into candidates before refinement
-
-
-def undistort_px(camera: CameraModel, points_px: np.ndarray) -> np.ndarray:
-    """Pixels -> ideal normalised image coordinates (N, 2), removing lens distortion."""
-    pts = np.ascontiguousarray(points_px, np.float64).reshape(-1, 2)
-    if not camera.dist.any():
-        return normalise_px(camera.K, pts)
-    deskewed, K = camera.deskew_px(pts)
-    criteria = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 40, 1e-12)
-    src = deskewed.reshape(-1, 1, 2)
-    if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x
-        out = cv2.undistortPointsIter(src, K, camera.dist, None, None, criteria)
-    else:  # OpenCV 5 folds the criteria into undistortPoints
-        out = cv2.undistortPoints(src, K, camera.dist, None, None, None, criteria)
-    return out.reshape(-1, 2)
 
 
 def estimate_marker_pose(camera: CameraModel, vertices_px: np.ndarray, marker_points: np.ndarray,
@@ -173,7 +157,7 @@ def up_in_camera(T_base_camera: np.ndarray) -> np.ndarray:
 def warm_up() -> None:
     """Compile (or load from numba's on-disk cache) the pose kernels: a view with and
     without distortion, with both priors, and the world pose."""
-    from services.geometry import T_floor
+    from services.core.geometry import T_floor
     model = np.array([[-0.03, 0.0, 0.0], [0.0, 0.04, 0.0], [0.03, 0.0, 0.0], [0.0, -0.04, 0.0]])
     T = np.eye(4)
     T[:3, :3] = [[0.9, 0.0, 0.43589], [0.0, 1.0, 0.0], [-0.43589, 0.0, 0.9]]

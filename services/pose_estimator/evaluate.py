@@ -15,10 +15,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from services.camera import CameraModel
-from services.config import Geometry
-from services.geometry import T_base_camera, T_floor, inv_T, make_T, rot_y, rot_z
-from services.pose_estimator.estimate import estimate_marker_pose, undistort_px, up_in_camera
+from services.core.camera import CameraModel, undistort_px
+from services.core.geometry import T_base_camera, T_floor, inv_T, make_T, rot_y, rot_z
+from services.core.mounts import Geometry
+from services.pose_estimator.estimate import estimate_marker_pose, up_in_camera
 from services.pose_estimator.p4p import ippe, posterior_cost, refine
 
 

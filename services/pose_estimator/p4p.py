@@ -25,7 +25,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.jit import njit
+from services.core.jit import njit
 
 
 class PoseError(ValueError):

@@ -11,9 +11,8 @@ from pydantic import Field
 
 from schemas import CameraIntrinsics, CameraPose, HumanoidPose, MarkerInCamera, MarkerVertices
 from schemas.keys import HUMANOID_POSE, INTRINSICS, ODOM, VERTICES
-from services.camera import CameraModel
-from services.config import RelPath, ServiceSettings
-from services.geometry import T_floor, inv_T, quaternion_from_R
+from services.core.camera import CameraModel
+from services.core.geometry import T_floor, inv_T, quaternion_from_R
 from services.pose_estimator.estimate import (
     estimate_marker_pose,
     humanoid_floor_pose,
@@ -22,6 +21,8 @@ from services.pose_estimator.estimate import (
 )
 from services.pose_estimator.odometry import OdometryBuffer
 from services.pose_estimator.p4p import PoseError
+from services.runtime.config import RelPath, ServiceSettings
+from services.runtime.context import ServiceContext
 
 
 class Settings(ServiceSettings):
@@ -68,7 +69,8 @@ class PoseEstimator:
                                   up_cam=self.up_cam, refine_steps=5 if self.config.refine else 0,
                                   sigma_px=self.config.vertex_sigma_px,
                                   tilt_sigma_rad=math.radians(self.config.tilt_sigma_deg),
-                                  previous_R=self._previous[1] if recent else None)
+                                  previous_R=self._previous[1] if recent and self._previous
+                                  else None)
         T = mp.T_camera_marker
         self._previous = (msg.stamp_ns, T[:3, :3])
         marker = MarkerInCamera(position=tuple(T[:3, 3].tolist()),  # type: ignore[arg-type]
@@ -131,7 +133,7 @@ async def _intrinsics(ctx, config: Settings) -> CameraModel:
         await asyncio.sleep(0.5)
 
 
-async def main(ctx, config: Settings) -> None:
+async def main(ctx: ServiceContext, config: Settings) -> None:
     bus, log = ctx.bus, ctx.log
     vertices = bus.subscribe(VERTICES, MarkerVertices, latest=True)
     odom = bus.subscribe(ODOM, CameraPose, latest=False, queue=64)

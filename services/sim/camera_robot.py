@@ -7,8 +7,8 @@ import math
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.geometry import wrap_angle
-from services.sim.world import World
+from services.core.geometry import wrap_angle
+from services.core.world import World
 
 
 class CameraRobotParams(BaseModel):

@@ -18,8 +18,8 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from schemas import Command
-from services.geometry import wrap_angle
-from services.sim.world import World
+from services.core.geometry import wrap_angle
+from services.core.world import World
 
 
 class HumanoidParams(BaseModel):

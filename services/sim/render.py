@@ -14,7 +14,7 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
-from services.camera import CameraModel
+from services.core.camera import CameraModel
 
 MAGENTA_BGR = (255, 0, 255)
 BODY_BGR = (58, 62, 66)

@@ -7,9 +7,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from services.camera import CameraModel
-from services.config import Geometry
-from services.geometry import inv_T, make_T, rot_z
+from services.core.camera import CameraModel
+from services.core.geometry import inv_T, make_T, rot_z
+from services.core.mounts import Geometry
 from services.sim.render import Rendered, RenderStyle, render_view
 
 

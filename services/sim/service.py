@@ -15,10 +15,14 @@ from pydantic import Field
 
 from schemas import CameraGoal, CameraPose, IrCommand, MarkerInCamera, Pose2D, SimTruth
 from schemas.keys import CAMERA_GOAL, INTRINSICS, ODOM, SIM_IR, SIM_TRUTH
-from services.bus import encode_frame
-from services.camera import CameraModel
-from services.config import RelPath, ServiceSettings
-from services.geometry import quaternion_from_R
+from services.core.camera import CameraModel
+from services.core.geometry import quaternion_from_R
+from services.core.mounts import Geometry
+from services.core.world import World
+from services.runtime.clock import Ticker
+from services.runtime.config import RelPath, ServiceSettings
+from services.runtime.context import ServiceContext
+from services.runtime.frames import encode_frame
 from services.sim.camera_robot import CameraRobotParams
 from services.sim.humanoid import HumanoidParams
 from services.sim.render import RenderStyle
@@ -44,7 +48,7 @@ class Settings(ServiceSettings):
     speedup: float = Field(default=1.0, gt=0.0, description="simulated s per wall-clock s")
 
 
-def build_world(config: Settings, geometry, world) -> SimWorld:
+def build_world(config: Settings, geometry: Geometry, world: World) -> SimWorld:
     camera = CameraModel.load(config.intrinsics) if config.intrinsics else CameraModel.paper()
     style = RenderStyle(seed=config.seed, brightness=config.brightness,
                         noise_sigma=config.noise_sigma, motion_blur_px=config.motion_blur_px,
@@ -55,16 +59,16 @@ def build_world(config: Settings, geometry, world) -> SimWorld:
                     seed=config.seed)
 
 
-async def main(ctx, config: Settings) -> None:
+async def main(ctx: ServiceContext, config: Settings) -> None:
     bus = ctx.bus
-    sim = build_world(config, ctx.deployment.geometry, ctx.deployment.world)
+    sim = build_world(config, ctx.geometry, ctx.world)
     bus.declare_queryable(INTRINSICS, sim.camera.to_message)
     bus.put(INTRINSICS, sim.camera.to_message())
     commands = bus.subscribe(SIM_IR, IrCommand, latest=False, queue=32)
     goals = bus.subscribe(CAMERA_GOAL, CameraGoal)
     dt = 1.0 / config.fps
     base_style = sim.style
-    next_tick = time.monotonic()
+    ticker = Ticker(dt / config.speedup)
     seq = 0
     while True:
         while (cmd := commands.get_nowait()) is not None:
@@ -91,10 +95,6 @@ async def main(ctx, config: Settings) -> None:
         bus.put_frame(header, payload)
         seq += 1
         if config.realtime:
-            next_tick += dt / config.speedup
-            delay = next_tick - time.monotonic()
-            if delay < -0.5:  # fell far behind: resynchronise rather than burst
-                next_tick = time.monotonic()
-            await asyncio.sleep(max(0.0, delay))
+            await ticker.wait()
         else:
             await asyncio.sleep(0)

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 
 from schemas import Command
-from services.camera import CameraModel
-from services.config import Geometry
-from services.geometry import T_floor, inv_T, make_T, rot_z
+from services.core.camera import CameraModel
+from services.core.geometry import T_floor, inv_T, make_T, rot_z
+from services.core.mounts import Geometry
+from services.core.world import World
 from services.sim.camera_robot import CameraRobot, CameraRobotParams
 from services.sim.humanoid import Humanoid, HumanoidParams
 from services.sim.render import Rendered, RenderStyle, render_view
-from services.sim.world import World
 
 
 class SimWorld:

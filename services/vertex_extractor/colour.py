@@ -7,22 +7,21 @@ purple things are not taken for the marker, at any brightness.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
-from services.jit import njit
+from services.core.jit import njit
 
 
-@dataclass(frozen=True)
-class ColourModel:
+class ColourModel(BaseModel):
     """Interior when: (R + B) / 2 - G > ``min_score``, G < ``green_ratio`` min(R, B),
     |R - B| < ``balance`` max(R, B) and min(R, B) > ``min_level`` (grey levels 0-255)."""
 
-    min_score: float = 60.0
-    green_ratio: float = 0.35
-    balance: float = 0.2
-    min_level: int = 50
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    min_score: float = Field(default=60.0, gt=0)
+    green_ratio: float = Field(default=0.35, gt=0, le=1)
+    balance: float = Field(default=0.2, gt=0, le=1)
+    min_level: int = Field(default=50, ge=0, le=255)
 
     @property
     def args(self) -> tuple[float, float, float, float]:

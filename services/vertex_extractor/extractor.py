@@ -26,26 +26,31 @@ the marker's horizontal diagonal must be the wider one within about 35 degrees o
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
+from pydantic import BaseModel, ConfigDict, Field
 
 from services.vertex_extractor import lines, scan
 from services.vertex_extractor.colour import ColourModel, grid_mask
 
 
-@dataclass(frozen=True)
-class ExtractorParams:
-    colour: ColourModel = field(default_factory=ColourModel)
-    dx: int = 1                  # Δx, column step (px)
-    min_len_px: int = 12         # MIN_LEN: shortest column chord used (px)
-    window: int = 5              # sub-pixel window: rows each side of the edge
-    coarse_step: int = 8         # grid step of the cold search (px)
-    min_area_px: float = 200.0   # smaller markers are refused as too small
-    max_residual_px: float = 0.8
-    min_points_per_edge: int = 4
-    min_angle_deg: float = 25.0
+class ExtractorParams(BaseModel):
+    """The extractor's parameters (the service's settings are exactly these); the only place
+    their defaults are defined."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    colour: ColourModel = Field(default_factory=ColourModel)
+    dx: int = Field(default=1, ge=1, le=8, description="column step Δx (px)")
+    min_len_px: int = Field(default=12, ge=4, description="MIN_LEN: shortest chord used (px)")
+    window: int = Field(default=5, ge=2, le=12,
+                        description="sub-pixel window: rows each side of the edge")
+    coarse_step: int = Field(default=8, ge=2, le=32, description="grid of the cold search (px)")
+    min_area_px: float = Field(default=200.0, gt=0, description="smaller markers are refused")
+    max_residual_px: float = Field(default=0.8, gt=0)
+    min_points_per_edge: int = Field(default=4, ge=2)
+    min_angle_deg: float = Field(default=25.0, gt=0, lt=90)
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ import math
 
 import numpy as np
 
-from services.jit import njit
+from services.core.jit import njit
 
 FIT_OK, TOO_FEW_POINTS, PARALLEL = 0, 1, 2
 PLAUSIBLE, NOT_FINITE, OUTSIDE, NOT_CONVEX, BAD_ANGLES, NOT_STRAIGHT, AREA_MISMATCH = range(7)

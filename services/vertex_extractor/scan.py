@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from services.jit import njit
+from services.core.jit import njit
 from services.vertex_extractor.colour import is_marker, score
 
 OK, BORDER, LOW_CONTRAST = 0, 1, 2

@@ -5,12 +5,11 @@ from __future__ import annotations
 import asyncio
 
 import cv2
-from pydantic import BaseModel, ConfigDict, Field
 
 from schemas import FrameEncoding, MarkerVertices
 from schemas.keys import VERTICES
-from services.config import ServiceSettings
-from services.vertex_extractor.colour import ColourModel
+from services.runtime.config import ServiceSettings
+from services.runtime.context import ServiceContext
 from services.vertex_extractor.extractor import (
     Detection,
     ExtractorParams,
@@ -19,28 +18,8 @@ from services.vertex_extractor.extractor import (
 )
 
 
-class ColourSettings(BaseModel):
-    model_config = ConfigDict(extra="forbid")
-    min_score: float = Field(default=60.0, gt=0)
-    green_ratio: float = Field(default=0.35, gt=0, le=1)
-    balance: float = Field(default=0.2, gt=0, le=1)
-    min_level: int = Field(default=50, ge=0, le=255)
-
-
-class Settings(ServiceSettings):
-    dx: int = Field(default=1, ge=1, le=8, description="column step Δx (px)")
-    min_len_px: int = Field(default=12, ge=4, description="MIN_LEN (px)")
-    window: int = Field(default=5, ge=2, le=12, description="sub-pixel window (rows)")
-    min_area_px: float = Field(default=200.0, gt=0)
-    max_residual_px: float = Field(default=0.8, gt=0)
-    colour: ColourSettings = Field(default_factory=ColourSettings)
-
-
-def params_from(config: Settings) -> ExtractorParams:
-    return ExtractorParams(colour=ColourModel(**config.colour.model_dump()), dx=config.dx,
-                           min_len_px=config.min_len_px, window=config.window,
-                           min_area_px=config.min_area_px,
-                           max_residual_px=config.max_residual_px)
+class Settings(ServiceSettings, ExtractorParams):
+    """Exactly the extractor's parameters (``ExtractorParams``)."""
 
 
 def to_message(det: Detection, seq: int, stamp_ns: int, width: int, height: int
@@ -53,12 +32,12 @@ def to_message(det: Detection, seq: int, stamp_ns: int, width: int, height: int
                           height=height)
 
 
-async def main(ctx, config: Settings) -> None:
+async def main(ctx: ServiceContext, config: Settings) -> None:
     bus, log = ctx.bus, ctx.log
-    params = params_from(config)
+    params = config.part(ExtractorParams)
+    frames = bus.subscribe_frames(latest=True)
     await asyncio.to_thread(warm_up, params)  # compiled kernels ready before the first frame
     extractor = RhombusExtractor(params)
-    frames = bus.subscribe_frames(latest=True)
     async for frame in frames:
         h = frame.header
         image = frame.image

@@ -14,7 +14,7 @@ import numpy as np
 from foxglove import messages as fm
 
 from schemas import CameraGoal, CameraPose, HumanoidPose, MarkerVertices, SimTruth
-from services.sim.world import CircleObstacle, World
+from services.core.world import CircleObstacle, World
 
 GREEN = fm.Color(r=0.1, g=0.9, b=0.2, a=1.0)
 RED = fm.Color(r=0.9, g=0.2, b=0.2, a=1.0)
@@ -32,7 +32,7 @@ def image(bgr: np.ndarray, stamp_ns: int, quality: int = 80) -> fm.CompressedIma
                               format="jpeg")
 
 
-def annotations(v: MarkerVertices) -> fm.ImageAnnotations:
+def image_annotations(v: MarkerVertices) -> fm.ImageAnnotations:
     """The rhombus as a closed line (Foxglove's pixel origin is the top-left pixel's corner;
     ours is its centre, hence + 0.5)."""
     if not v.found or v.vertices_px is None:

@@ -4,7 +4,6 @@ the poses on a floor plan. Needs the ``viz`` extra (``pip install '.[viz]'``).""
 
 from __future__ import annotations
 
-import asyncio
 import time
 
 from pydantic import Field
@@ -27,7 +26,9 @@ from schemas.keys import (
     SIM_TRUTH,
     VERTICES,
 )
-from services.config import ServiceSettings
+from services.runtime.clock import Ticker
+from services.runtime.config import ServiceSettings
+from services.runtime.context import ServiceContext
 
 
 class Settings(ServiceSettings):
@@ -37,11 +38,11 @@ class Settings(ServiceSettings):
     jpeg_quality: int = Field(default=75, ge=10, le=100)
 
 
-async def main(ctx, config: Settings) -> None:
+async def main(ctx: ServiceContext, config: Settings) -> None:
     try:
         import foxglove
 
-        from services.viz.convert import annotations, floor_scene, image
+        from services.viz.convert import floor_scene, image, image_annotations
     except ImportError:
         ctx.log.error("the viz service needs foxglove-sdk: pip install '.[viz]'")
         return
@@ -59,6 +60,7 @@ async def main(ctx, config: Settings) -> None:
     mc = ctx.deployment.settings.get("mission_controller")
     waypoints = list(mc.waypoints) if mc is not None else []
     pose = truth = odom = goal = None
+    ticker = Ticker(1.0 / config.fps)
     try:
         while True:
             if (m := mission_sub.get_nowait()) is not None:
@@ -72,13 +74,13 @@ async def main(ctx, config: Settings) -> None:
                 foxglove.log("/camera/image", image(f.image, f.header.stamp_ns,
                                                     config.jpeg_quality))
             if (v := verts.get_nowait()) is not None:
-                foxglove.log("/camera/annotations", annotations(v))
+                foxglove.log("/camera/annotations", image_annotations(v))
             if (s := state_sub.get_nowait()) is not None:
                 foxglove.log("/mission/state", s.model_dump(mode="json"))
             if pose is not None:
                 foxglove.log("/humanoid/pose", pose.model_dump(mode="json"))
             foxglove.log("/floor", floor_scene(now, pose, truth, odom, goal, waypoints,
                                                ctx.deployment.world))
-            await asyncio.sleep(1.0 / config.fps)
+            await ticker.wait()
     finally:
         server.stop()

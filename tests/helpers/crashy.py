@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import asyncio
 
-from services.config import ServiceSettings
+from services.runtime.config import ServiceSettings
 
 STARTS: list[int] = []
 SESSIONS: list[object] = []  # the Zenoh session of each start

@@ -6,10 +6,11 @@ import time
 
 import numpy as np
 
-from services.bus import Bus, encode_frame
-from services.camera import CameraModel
-from services.config import Geometry
-from services.geometry import inv_T
+from services.core.camera import CameraModel
+from services.core.geometry import inv_T
+from services.core.mounts import Geometry
+from services.runtime.bus import Bus
+from services.runtime.frames import encode_frame
 from services.sim.render import Rendered, RenderStyle, render_view
 from services.sim.scenes import marker_pose
 

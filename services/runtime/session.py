@@ -1,0 +1,56 @@
+"""The Zenoh session a deployment opens: its ``[zenoh]`` table, the native config, opening."""
+
+from __future__ import annotations
+
+import contextlib
+import json
+from collections.abc import Iterator
+from pathlib import Path
+
+import zenoh
+from pydantic import BaseModel, ConfigDict, Field
+
+#: Where commands that talk to the bus connect without ``--connect`` (``deploy/sim.toml``
+#: listens here).
+LOCAL_ENDPOINT = "tcp/127.0.0.1:7447"
+
+
+class ZenohSettings(BaseModel):
+    """The ``[zenoh]`` table of a deployment file."""
+
+    model_config = ConfigDict(extra="forbid")
+    mode: str = Field(default="peer", pattern="^(peer|client|router)$")
+    connect: list[str] = Field(default_factory=list)
+    listen: list[str] = Field(default_factory=list)
+    multicast_scouting: bool = True
+    config_file: Path | None = None
+    local_delivery: bool = Field(default=True, description=(
+        "services sharing a session take each other's messages in-process (still published "
+        "to Zenoh for everyone else)"))
+
+
+def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
+    """Build a ``zenoh.Config``: the native config file first, then our table on top."""
+    if settings.config_file is not None:
+        if not settings.config_file.is_file():
+            raise FileNotFoundError(f"zenoh config_file {settings.config_file} does not exist")
+        conf = zenoh.Config.from_file(str(settings.config_file))
+    else:
+        conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(settings.mode))
+    conf.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
+    if settings.connect:
+        conf.insert_json5("connect/endpoints", json.dumps(settings.connect))
+    if settings.listen:
+        conf.insert_json5("listen/endpoints", json.dumps(settings.listen))
+    return conf
+
+
+@contextlib.contextmanager
+def open_session(settings: ZenohSettings) -> Iterator[zenoh.Session]:
+    """Open a Zenoh session and close it on every path."""
+    session = zenoh.open(zenoh_config(settings))
+    try:
+        yield session
+    finally:
+        session.close()

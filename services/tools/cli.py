@@ -1,0 +1,315 @@
+"""The ``shepherd`` command. Argument parsing lives here and nowhere else."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import logging
+import sys
+import time
+from importlib import metadata
+from pathlib import Path
+
+from schemas import Command, Message
+from services.data import DEFAULT_DEPLOYMENT
+from services.runtime.session import LOCAL_ENDPOINT, ZenohSettings
+
+
+def _version() -> str:
+    try:
+        return metadata.version("shepherd")
+    except metadata.PackageNotFoundError:
+        return "0+unknown"
+
+
+def _zenoh_args(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--connect", "-e", action="append", default=[], metavar="EP",
+                   help="Zenoh endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)")
+    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP",
+                   help="Zenoh endpoint to listen on (repeatable)")
+    p.add_argument("--mode", choices=["peer", "client"], default="peer")
+    p.add_argument("--namespace", default="shepherd", help="key prefix (default: shepherd)")
+
+
+def _session_settings(args: argparse.Namespace) -> ZenohSettings:
+    # Explicit endpoints mean the user knows where to go: no multicast scouting then.
+    # Without any, look for the local default deployment (deploy/sim.toml listens there).
+    explicit = bool(args.connect or args.listen)
+    return ZenohSettings(mode=args.mode, connect=args.connect or [LOCAL_ENDPOINT],
+                         listen=args.listen, multicast_scouting=not explicit)
+
+
+def cmd_run(args: argparse.Namespace) -> int:
+    from services.runtime.config import ConfigError, load_deployment
+    from services.runtime.launcher import run_deployment
+    path = Path(args.file) if args.file else DEFAULT_DEPLOYMENT
+    try:
+        dep = load_deployment(path)
+    except ConfigError as err:
+        print(f"shepherd: {err}", file=sys.stderr)
+        return 2
+    if args.connect:
+        dep.zenoh.connect = args.connect
+        dep.zenoh.multicast_scouting = False
+    if args.listen:
+        dep.zenoh.listen = args.listen
+    import zenoh
+    try:
+        return asyncio.run(run_deployment(dep, only=args.only or None, duration=args.duration,
+                                          processes=args.processes, child=args.child))
+    except KeyError as err:
+        print(f"shepherd: {err.args[0]}", file=sys.stderr)
+        return 2
+    except zenoh.ZError as err:
+        eps = ", ".join(dep.zenoh.listen + dep.zenoh.connect) or "the default endpoints"
+        print(f"shepherd: cannot open the Zenoh session ({eps}): {str(err).split(' at ')[0]}"
+              " - is another shepherd run using it? Pick others with --listen/--connect.",
+              file=sys.stderr)
+        return 2
+
+
+def cmd_echo(args: argparse.Namespace) -> int:
+    from services.tools.echo import echo
+    try:
+        return asyncio.run(echo(_session_settings(args), args.namespace, args.key_expr,
+                                count=args.count, duration=args.duration, raw=args.json))
+    except KeyboardInterrupt:
+        return 0
+
+
+def cmd_router(args: argparse.Namespace) -> int:
+    from services.runtime.session import open_session
+    listen = args.listen or ["tcp/0.0.0.0:7447"]
+    settings = ZenohSettings(mode="router", listen=listen, multicast_scouting=False,
+                             config_file=Path(args.config) if args.config else None)
+    with open_session(settings):
+        print(f"shepherd router listening on {', '.join(listen)}", flush=True)
+        try:
+            if args.duration:
+                time.sleep(args.duration)
+            else:
+                while True:
+                    time.sleep(3600)
+        except KeyboardInterrupt:
+            pass
+    return 0
+
+
+def cmd_schemas(args: argparse.Namespace) -> int:
+    from schemas import ALL_MODELS
+    out = {m.__name__: {"encoding": m.zenoh_encoding(), "schema": m.model_json_schema()}
+           for m in ALL_MODELS}
+    from schemas.keys import TOPICS
+    out["_keys"] = {k: (v.__name__ if v else "raw frame, FrameHeader attachment")
+                    for k, v in TOPICS.items()}
+    print(json.dumps(out, indent=2))
+    return 0
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    from services.tools.bench import run_bench
+    return run_bench(args.only, quick=args.quick)
+
+
+def cmd_publish(args: argparse.Namespace, suffix: str, message: Message) -> int:
+    from services.tools.echo import publish_once
+    return asyncio.run(publish_once(_session_settings(args), args.namespace, suffix, message))
+
+
+def cmd_mission(args: argparse.Namespace) -> int:
+    from schemas import IrCommand, MissionGoal
+    from schemas.keys import IR_COMMAND, MISSION_GOAL
+    if args.mission_cmd == "goto":
+        if len(args.coords) % 2:
+            print("shepherd: mission goto needs X Y pairs (metres)", file=sys.stderr)
+            return 2
+        pts = [(args.coords[i], args.coords[i + 1]) for i in range(0, len(args.coords), 2)]
+        return cmd_publish(args, MISSION_GOAL, MissionGoal(waypoints=pts,
+                                                           tolerance_m=args.tolerance))
+    rc = cmd_publish(args, MISSION_GOAL, MissionGoal(waypoints=[]))
+    return rc or cmd_publish(args, IR_COMMAND, IrCommand(command=Command.STOP))
+
+
+def cmd_ir(args: argparse.Namespace) -> int:
+    from schemas import IrBackendRequest, IrCommand
+    from schemas.keys import IR_BACKEND, IR_COMMAND
+    if args.ir_cmd == "send":
+        return cmd_publish(args, IR_COMMAND, IrCommand(command=args.command))
+    options = dict(o.split("=", 1) for o in args.option)
+    if args.port:
+        options["port"] = args.port
+    if args.baud:
+        options["baud"] = args.baud
+    if args.socket:
+        options["socket"] = args.socket
+    return cmd_publish(args, IR_BACKEND, IrBackendRequest(backend=args.backend, options=options))
+
+
+def cmd_record(args: argparse.Namespace) -> int:
+    from services.tools.recorder import record
+    try:
+        return asyncio.run(record(_session_settings(args), args.namespace, Path(args.out),
+                                  args.key_exprs, args.duration, args.jpeg))
+    except KeyboardInterrupt:
+        return 0
+
+
+def cmd_replay(args: argparse.Namespace) -> int:
+    from services.tools.recorder import replay
+    if not Path(args.inp).is_file():
+        print(f"shepherd: no such recording: {args.inp}", file=sys.stderr)
+        return 2
+    return asyncio.run(replay(_session_settings(args), Path(args.inp), args.speed,
+                              args.only or None))
+
+
+def cmd_soak(args: argparse.Namespace) -> int:
+    from services.runtime.config import ConfigError, load_deployment
+    from services.tools.soak import soak
+    try:
+        dep = load_deployment(Path(args.file) if args.file else DEFAULT_DEPLOYMENT)
+    except ConfigError as err:
+        print(f"shepherd: {err}", file=sys.stderr)
+        return 2
+    if args.listen:
+        dep.zenoh.listen = args.listen
+    return asyncio.run(soak(dep, args.minutes, args.sample_s))
+
+
+def cmd_experiments(args: argparse.Namespace) -> int:
+    from services.tools.experiments import run
+    return run(Path(args.out), quick=args.quick)
+
+
+def cmd_compile(args: argparse.Namespace) -> int:
+    from services.tools.kernels import compile_kernels
+    compile_kernels()
+    return 0
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(prog="shepherd", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"shepherd {_version()}")
+    parser.add_argument("--log-level", default="INFO")
+    sub = parser.add_subparsers(dest="cmd", required=True)
+
+    p = sub.add_parser("run", help="run the services a deployment file names")
+    p.add_argument("file", nargs="?", help=f"deployment file (default {DEFAULT_DEPLOYMENT})")
+    p.add_argument("--connect", "-e", action="append", default=[], metavar="EP")
+    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP")
+    p.add_argument("--duration", type=float, help="stop after S seconds")
+    p.add_argument("--only", action="append", default=[], metavar="NAME",
+                   help="run only this service (repeatable)")
+    p.add_argument("--processes", action="store_true", help="one OS process per service")
+    p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
+    p.set_defaults(func=cmd_run)
+
+    p = sub.add_parser("echo", help="print decoded messages on a key expression")
+    p.add_argument("key_expr", nargs="?", default="shepherd/**")
+    _zenoh_args(p)
+    p.add_argument("--count", type=int, help="exit after N messages")
+    p.add_argument("--duration", type=float, help="exit after S seconds")
+    p.add_argument("--json", action="store_true", help="print the raw JSON")
+    p.set_defaults(func=cmd_echo)
+
+    p = sub.add_parser("router", help="run a Zenoh router (no zenohd needed)")
+    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP")
+    p.add_argument("--config", help="native Zenoh config file (TLS, auth, ACL)")
+    p.add_argument("--duration", type=float, help=argparse.SUPPRESS)
+    p.set_defaults(func=cmd_router)
+
+    p = sub.add_parser("schemas", help="print the JSON Schema of every message")
+    p.set_defaults(func=cmd_schemas)
+
+    p = sub.add_parser("compile", help="compile the hot-path kernels now (first run: ~40 s)")
+    p.set_defaults(func=cmd_compile)
+
+    p = sub.add_parser("bench", help="benchmarks beside their references")
+    p.add_argument("--only", action="append", default=[],
+                   help="bus, vertices, pose, calibration, e2e (repeatable)")
+    p.add_argument("--quick", action="store_true", help="fewer repetitions")
+    p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("mission", help="send the humanoid somewhere, or stop it")
+    msub = p.add_subparsers(dest="mission_cmd", required=True)
+    g = msub.add_parser("goto", help="waypoints X Y [X Y ...] in metres, world frame")
+    g.add_argument("coords", nargs="+", type=float)
+    g.add_argument("--tolerance", type=float, default=None,
+                   help="goal tolerance l, metres (default: the controller's)")
+    _zenoh_args(g)
+    s = msub.add_parser("stop", help="clear the mission and send stop")
+    _zenoh_args(s)
+    p.set_defaults(func=cmd_mission)
+
+    p = sub.add_parser("ir", help="send an IR command or switch the IR backend")
+    isub = p.add_subparsers(dest="ir_cmd", required=True)
+    s = isub.add_parser("send")
+    s.add_argument("command", choices=["walk_forward", "walk_backward", "turn_left",
+                                       "turn_right", "stop"])
+    _zenoh_args(s)
+    b = isub.add_parser("backend")
+    b.add_argument("backend", choices=["serial", "lirc", "sim", "log"])
+    b.add_argument("--port")
+    b.add_argument("--baud", type=int)
+    b.add_argument("--socket")
+    b.add_argument("--option", "-o", action="append", default=[], metavar="KEY=VALUE")
+    _zenoh_args(b)
+    p.set_defaults(func=cmd_ir)
+
+    p = sub.add_parser("record", help="record bus traffic to an MCAP file")
+    p.add_argument("out", help="OUT.mcap")
+    p.add_argument("key_exprs", nargs="*", help="default: <namespace>/**")
+    _zenoh_args(p)
+    p.add_argument("--duration", type=float, help="stop after S seconds (default: Ctrl-C)")
+    p.add_argument("--jpeg", type=int, metavar="Q", help="store frames as JPEG of quality Q")
+    p.set_defaults(func=cmd_record)
+
+    p = sub.add_parser("replay", help="publish an MCAP recording back at its recorded pace")
+    p.add_argument("inp", metavar="IN.mcap")
+    _zenoh_args(p)
+    p.add_argument("--speed", type=float, default=1.0)
+    p.add_argument("--only", action="append", default=[], metavar="KEY_EXPR",
+                   help="replay only matching keys (repeatable)")
+    p.set_defaults(func=cmd_replay)
+
+    p = sub.add_parser("soak", help="run the simulated mission back and forth; watch memory")
+    p.add_argument("file", nargs="?", help=f"deployment (default {DEFAULT_DEPLOYMENT})")
+    p.add_argument("--minutes", type=float, default=30.0)
+    p.add_argument("--sample-s", type=float, default=60.0, help="memory sampling period")
+    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP")
+    p.set_defaults(func=cmd_soak)
+
+    p = sub.add_parser("experiments", help="the paper's experiments in simulation: report")
+    p.add_argument("--out", default="experiments", help="folder for report.md and plots")
+    p.add_argument("--quick", action="store_true", help="fewer trials")
+    p.set_defaults(func=cmd_experiments)
+
+    from services.tools.sim_snapshot import add_sim_parser
+    add_sim_parser(sub)
+    from services.tools.calibrate import add_calibrate_parser
+    add_calibrate_parser(sub)
+    return parser
+
+
+def use_fast_event_loop() -> None:
+    """uvloop's event loop where it is installed (a dependency except on Windows): about
+    0.1 ms less from frame to pose at 30 fps here than asyncio's own loop."""
+    try:
+        import uvloop
+    except ImportError:
+        return
+    asyncio.set_event_loop_policy(uvloop.EventLoopPolicy())
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = build_parser().parse_args(argv)
+    use_fast_event_loop()
+    logging.basicConfig(level=getattr(logging, str(args.log_level).upper(), logging.INFO),
+                        format="%(asctime)s %(name)s %(levelname)s %(message)s",
+                        datefmt="%H:%M:%S")
+    return int(args.func(args) or 0)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

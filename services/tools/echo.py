@@ -1,0 +1,69 @@
+"""``shepherd echo`` and one-shot publishing for the CLI."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+
+from schemas import Keys, Message
+from schemas.keys import model_or_none
+from services.runtime.bus import Bus
+from services.runtime.session import ZenohSettings, open_session
+from services.tools.pretty import describe
+
+
+async def echo(settings: ZenohSettings, namespace: str, key_expr: str, *,
+               count: int | None = None, duration: float | None = None,
+               raw: bool = False) -> int:
+    """Print every message on ``key_expr``, decoded and readable, one line each."""
+    keys = Keys(namespace)
+    seen = 0
+    frame_times: list[float] = []
+    with open_session(settings) as session:
+        bus = Bus(session, keys, "echo")
+        samples = bus.subscribe_raw(key_expr)
+        deadline = None if duration is None else time.monotonic() + duration
+        try:
+            while count is None or seen < count:
+                timeout = None if deadline is None else max(0.0, deadline - time.monotonic())
+                try:
+                    sample = await samples.recv(timeout)
+                except TimeoutError:
+                    break
+                key = str(sample.key_expr)
+                suffix = keys.suffix(key)
+                model = model_or_none(suffix)
+                if suffix == "camera/frame":
+                    frame = bus.decode_frame(sample)
+                    now = time.monotonic()
+                    frame_times = [t for t in frame_times if now - t < 2.0] + [now]
+                    rate = (len(frame_times) - 1) / max(now - frame_times[0], 1e-9)
+                    if frame is None:
+                        line = "invalid frame (see warning)"
+                    else:
+                        h = frame.header
+                        line = (f"seq={h.seq} {h.width}x{h.height} {h.encoding.value} "
+                                f"{len(sample.payload.to_bytes()) / 1e3:.1f} kB {rate:.1f} fps")
+                elif model is not None and not raw:
+                    msg = bus.decode(sample, model)
+                    line = "invalid (see warning)" if msg is None else describe(msg)
+                else:
+                    line = sample.payload.to_bytes().decode(errors="replace")
+                print(f"{suffix}: {line}", flush=True)
+                seen += 1
+        finally:
+            bus.close()
+    return 0
+
+
+async def publish_once(settings: ZenohSettings, namespace: str, suffix: str,
+                       message: Message, settle_s: float = 0.5) -> int:
+    """Publish one message (after giving discovery ``settle_s`` to find subscribers)."""
+    with open_session(settings) as session:
+        bus = Bus(session, Keys(namespace), "cli")
+        await asyncio.sleep(settle_s)
+        bus.put(suffix, message)
+        print(f"{suffix}: {describe(message)}")
+        await asyncio.sleep(0.1)
+        bus.close()
+    return 0

@@ -1,0 +1,268 @@
+"""``shepherd experiments``: the paper's experiments reproduced in simulation.
+
+- Table 3: the camera's pose recovered from four rhombi at known positions, about 38 cm
+  away, with the paper's camera matrix; spread between the four estimates.
+- Fig. 9: the humanoid's distance from the camera over time in the control experiment
+  (29 cm -> 60 cm), from a direct loop of the same modules the services use.
+- Fig. 10: standard deviation of the estimated distance against the area ratio r, and the
+  distance where r = 5%.
+- Critical angle: standard deviation against the view angle at d = 25 cm.
+
+Writes ``report.md`` and PNG plots; the paper's numbers beside ours.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from schemas import Command, MarkerVertices
+from services.core.camera import CameraModel
+from services.core.geometry import inv_T, make_T, rot_x, rot_y
+from services.core.mounts import Geometry
+from services.core.world import World
+from services.mission_controller.controller import ControlParams, HeuristicController
+from services.monitor.plot import line_plot
+from services.pose_estimator.estimate import estimate_marker_pose, up_in_camera
+from services.pose_estimator.service import PoseEstimator
+from services.pose_estimator.service import Settings as PoseSettings
+from services.sim.render import RenderStyle, render_view
+from services.sim.scenes import marker_pose
+from services.sim.state import SimWorld
+from services.vertex_extractor.extractor import RhombusExtractor
+
+PAPER_TABLE3_SPREAD = {"x": 0.265, "y": 0.580, "z": 1.419, "roll": 2.643, "pitch": 6.855,
+                       "yaw": 0.857}
+
+
+def _progress(text: str) -> None:
+    print(f"  … {text}", file=sys.stderr, flush=True)
+
+
+def _euler_deg(R: np.ndarray) -> tuple[float, float, float]:
+    """(roll about z, pitch about x, yaw about y) in degrees of a camera-convention rotation
+    (the paper's z along the optical axis, y vertical)."""
+    pitch = math.degrees(math.asin(max(-1.0, min(1.0, -R[1, 2]))))
+    yaw = math.degrees(math.atan2(R[0, 2], R[2, 2]))
+    roll = math.degrees(math.atan2(R[1, 0], R[1, 1]))
+    return roll, pitch, yaw
+
+
+def _noisy_style(rng: np.random.Generator, k: int) -> RenderStyle:
+    """A web camera's look: noise about 3 grey levels, a little blur, lighting changes."""
+    return RenderStyle(seed=int(rng.integers(0, 4)), noise_sigma=3.0,
+                       brightness=float(rng.uniform(0.8, 1.15)),
+                       motion_blur_px=float(rng.uniform(0.0, 1.5)))
+
+
+def table3(trials: int, seed: int = 0) -> tuple[str, dict[str, float]]:
+    """Camera pose from each of four rhombi on a sheet, about 38 cm away."""
+    cam, g = CameraModel.paper(), Geometry()
+    pts = g.marker_points()
+    # the sheet frame S: x right, y down, z away from the camera (like the camera's own)
+    T_camera_sheet = make_T(rot_x(math.radians(-8)) @ rot_y(math.radians(3)),
+                            (0.03, 0.0, 0.38))
+    offsets = [(-0.06, -0.05), (0.06, -0.05), (-0.06, 0.05), (0.06, 0.05)]
+    T_sheet_markers = [make_T(np.diag([1.0, -1.0, -1.0]), (x, y, 0.0)) for x, y in offsets]
+    rng = np.random.default_rng(seed)
+    ex = RhombusExtractor()
+    spreads = []
+    per_marker_first: list[np.ndarray] = []
+    for trial in range(trials):
+        rows = []
+        for T_sm in T_sheet_markers:
+            T_cm = T_camera_sheet @ T_sm
+            r = render_view(cam, T_cm, marker_points_m=pts, style=_noisy_style(rng, trial),
+                            frame_index=trial)
+            ex.reset()
+            det = ex.extract(r.image)
+            if not det.found or det.vertices_px is None:
+                continue
+            est = estimate_marker_pose(cam, det.vertices_px, pts, sigma_px=0.3)
+            T_sheet_camera = T_sm @ inv_T(est.T_camera_marker)
+            x, y, z = 100 * T_sheet_camera[:3, 3]
+            rows.append([x, -y, -z, *_euler_deg(T_sheet_camera[:3, :3])])
+        if len(rows) == 4:
+            a = np.array(rows)
+            spreads.append(np.mean(np.abs(a - a.mean(0)), axis=0))
+            if not per_marker_first:
+                per_marker_first = list(a)
+    spread = np.mean(spreads, axis=0)
+    names = ["x", "y", "z", "roll", "pitch", "yaw"]
+    truth = inv_T(T_camera_sheet)
+    tx, ty, tz = 100 * truth[:3, 3]
+    lines = ["| | Rho. 1 | Rho. 2 | Rho. 3 | Rho. 4 | spread (ours) | spread (paper) |",
+             "|---|---|---|---|---|---|---|"]
+    for j, n in enumerate(names):
+        vals = " | ".join(f"{m[j]:.3f}" for m in per_marker_first)
+        unit = "cm" if j < 3 else "°"
+        lines.append(f"| {n} ({unit}) | {vals} | {spread[j]:.3f} | "
+                     f"{PAPER_TABLE3_SPREAD[n]:.3f} |")
+    text = ("\n".join(lines) + f"\n\nTrue camera position in the sheet frame: ({tx:.2f}, "
+            f"{-ty:.2f}, {-tz:.2f}) cm (x right, y up, z towards the camera, as the paper's "
+            f"table). Spread = mean absolute deviation of the four estimates from their mean, "
+            f"averaged over {len(spreads)} noisy trials (noise 3 grey levels, blur up to "
+            "1.5 px, lighting 0.8-1.15); the first trial's estimates are shown.")
+    return text, dict(zip(names, spread.tolist(), strict=True))
+
+
+def control_run(seed: int = 1, max_s: float = 30.0, fps: float = 30.0
+                ) -> tuple[np.ndarray, np.ndarray, tuple[float, float]]:
+    """The paper's control experiment in a direct loop: (t, true x), (t, est x), final."""
+    g = Geometry()
+    sim = SimWorld(camera=CameraModel.paper(), geometry=g, world=World(),
+                   humanoid_start=(0.29, 0.0, 0.0), camera_start=(0.0, 0.0, 0.0), seed=seed)
+    ex = RhombusExtractor()
+    est = PoseEstimator(sim.camera, g, PoseSettings(static_camera_pose=(0.0, 0.0, 0.0)))
+    ctrl = HeuristicController(ControlParams())
+    ctrl.set_waypoints([(0.60, 0.0)])
+    truth, estimates = [], []
+    last: Command | None = None
+    dt = 1.0 / fps
+    done_at = None
+    for k in range(int(max_s * fps)):
+        t = k * dt
+        sim.step(dt)
+        det = ex.extract(sim.render().image)
+        pose = None
+        if det.found and det.vertices_px is not None:
+            v = det.vertices_px
+            msg = MarkerVertices(seq=k, stamp_ns=int(t * 1e9), found=True, vertices_px=(
+                (v[0, 0], v[0, 1]), (v[1, 0], v[1, 1]), (v[2, 0], v[2, 1]), (v[3, 0], v[3, 1])))
+            p = est.estimate(msg)
+            assert p.x is not None and p.y is not None and p.yaw is not None
+            pose = (p.x, p.y, p.yaw)
+            estimates.append((t, p.x))
+        truth.append((t, sim.humanoid.x))
+        if k % 3 == 0:  # 10 Hz control
+            d = ctrl.decide(pose, 0.0, False)
+            if d.command is not last:
+                sim.command(d.command)
+                last = d.command
+            if d.phase.value == "done" and done_at is None:
+                done_at = t
+        if done_at is not None and t - done_at > 1.5:
+            break
+    return np.array(truth), np.array(estimates), (sim.humanoid.x, sim.humanoid.y)
+
+
+def std_vs_distance(trials: int, seed: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(area ratio r, distance m, std of estimated z m) for a marker facing the camera."""
+    cam, g = CameraModel.paper(), Geometry()
+    pts = g.marker_points()
+    up = up_in_camera(g.T_base_camera())  # the system's upright prior, as the service uses
+    rng = np.random.default_rng(seed)
+    ex = RhombusExtractor()
+    rs, ds, stds = [], [], []
+    for d in np.linspace(0.15, 0.9, 16):
+        zs, r_area = [], 0.0
+        for k in range(trials):
+            T = marker_pose(d, cam.K[0, 2], cam.K[1, 2], cam)
+            rr = render_view(cam, T, marker_points_m=pts, style=_noisy_style(rng, k),
+                             frame_index=k)
+            ex.reset()
+            det = ex.extract(rr.image)
+            if det.found and det.vertices_px is not None:
+                zs.append(estimate_marker_pose(cam, det.vertices_px, pts, up_cam=up,
+                                               sigma_px=0.3).T_camera_marker[2, 3])
+                r_area = det.area_ratio
+        if len(zs) > 2:
+            rs.append(r_area)
+            ds.append(d)
+            stds.append(float(np.std(zs)))
+    return np.array(rs), np.array(ds), np.array(stds)
+
+
+def std_vs_angle(trials: int, seed: int = 3) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(view angle deg, std of estimated z m, std of estimated yaw deg) at d = 25 cm."""
+    cam, g = CameraModel.paper(), Geometry()
+    pts = g.marker_points()
+    T_bc = g.T_base_camera()
+    up = up_in_camera(T_bc)
+    rng = np.random.default_rng(seed)
+    ex = RhombusExtractor()
+    angles, sz, syaw = [], [], []
+    for a in range(0, 76, 5):
+        zs, yaws = [], []
+        for k in range(trials):
+            T = marker_pose(0.25, cam.K[0, 2], cam.K[1, 2], cam, math.radians(a))
+            rr = render_view(cam, T, marker_points_m=pts, style=_noisy_style(rng, k),
+                             frame_index=k)
+            ex.reset()
+            det = ex.extract(rr.image)
+            if det.found and det.vertices_px is not None:
+                R = estimate_marker_pose(cam, det.vertices_px, pts, up_cam=up,
+                                         sigma_px=0.3).T_camera_marker
+                zs.append(R[2, 3])
+                yaws.append(math.degrees(math.atan2(R[0, 2], -R[2, 2])))
+        if len(zs) > 2:
+            angles.append(a)
+            sz.append(float(np.std(zs)))
+            syaw.append(float(np.std(yaws)))
+    return np.array(angles), np.array(sz), np.array(syaw)
+
+
+def run(out: Path, quick: bool = False) -> int:
+    out.mkdir(parents=True, exist_ok=True)
+    trials = 4 if quick else 30
+    t0 = time.monotonic()
+    parts = ["# Shepherd: the paper's experiments in simulation", "",
+             f"Generated by `shepherd experiments{' --quick' if quick else ''}` "
+             f"({trials} noisy trials per point). Camera: the paper's A matrix, 640x480.", ""]
+    _progress("Table 3: camera pose from four rhombi")
+    text, _ = table3(trials)
+    parts += ["## Table 3: camera pose from four rhombi (~38 cm)", "", text, ""]
+
+    _progress("Fig. 9: the control experiment")
+    truth, est, final = control_run(max_s=20.0 if quick else 30.0)
+    err = math.hypot(final[0] - 0.60, final[1])
+    cv2.imwrite(str(out / "fig9_distance.png"), line_plot(
+        [("estimated (cm)", est[:, 0], 100 * est[:, 1]),
+         ("true (cm)", truth[:, 0], 100 * truth[:, 1])],
+        title="Fig. 9: humanoid distance from the camera (z) over time", xlabel="time (s)",
+        ylabel="cm", hlines=[("goal 60 cm", 60.0)]))
+    parts += ["## Fig. 9: the control experiment", "", "![](fig9_distance.png)", "",
+              "| | goal (x, y, z) cm | reached (x, y, z) cm | error |", "|---|---|---|---|",
+              "| paper | (0, 4.7, 60) | (3.3, 4.8, 58.2) | 3.8 cm |",
+              f"| ours (truth) | (0, 4.7, 60) | ({-100 * final[1]:.1f}, 4.7, "
+              f"{100 * final[0]:.1f}) | {100 * err:.1f} cm |", "",
+              "Ours: a direct loop of the simulator, extractor, pose estimator and heuristic "
+              "controller at 30 fps (control at 10 Hz), the camera fixed as in the paper; y is "
+              "the marker height above the camera axis and is not estimated on the floor.", ""]
+
+    _progress("Fig. 10: spread against area ratio")
+    rs, ds, stds = std_vs_distance(trials)
+    cv2.imwrite(str(out / "fig10_std_vs_r.png"), line_plot(
+        [("std of z (mm)", 100 * rs, 1000 * stds)], title="Fig. 10: std of estimated z "
+         "against the area ratio r", xlabel="r (%)", ylabel="mm"))
+    d5 = float(np.interp(0.05, rs[::-1], ds[::-1])) if len(rs) else float("nan")
+    rows = "\n".join(f"| {100 * r:.2f} | {100 * d:.1f} | {1000 * s:.2f} |"
+                     for r, d, s in zip(rs, ds, stds, strict=True))
+    parts += ["## Fig. 10: standard deviation of z against r", "", "![](fig10_std_vs_r.png)",
+              "", "| r (%) | distance (cm) | std of z (mm) |", "|---|---|---|", rows, "",
+              f"r = 5% at d = {100 * d5:.1f} cm (paper: 25 cm). The paper saw the deviation "
+              "rise quickly below r = 5%; here it grows with distance as expected "
+              "(std ~ z² / (f · size)).", ""]
+
+    _progress("critical angle")
+    angles, sz, syaw = std_vs_angle(trials)
+    cv2.imwrite(str(out / "critical_angle.png"), line_plot(
+        [("std of z (mm)", angles, 1000 * sz), ("std of yaw (deg)", angles, syaw)],
+        title="Spread against the view angle off the marker normal (d = 25 cm)",
+        xlabel="degrees off the normal", ylabel="mm / deg"))
+    rows = "\n".join(f"| {a:.0f} | {1000 * s:.2f} | {y:.2f} |"
+                     for a, s, y in zip(angles, sz, syaw, strict=True))
+    parts += ["## Critical angle", "", "![](critical_angle.png)", "",
+              "| view angle off normal (°) | std of z (mm) | std of yaw (°) |", "|---|---|---|",
+              rows, "", "The paper found theta = 50° (the view at most 40° off the marker's "
+              "normal) keeps its spread under 5%; Shepherd's planner uses the same default.",
+              ""]
+    parts.append(f"_Run time {time.monotonic() - t0:.0f} s._")
+    (out / "report.md").write_text("\n".join(parts) + "\n")
+    print(f"wrote {out / 'report.md'} and {len(list(out.glob('*.png')))} plots")
+    return 0
