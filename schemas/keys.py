@@ -38,6 +38,10 @@ SIM_TRUTH = "sim/truth"
 ALIVE = "alive"
 STATS = "stats"  # queryable stats/<service>: ServiceStats
 
+#: Keys that move a robot (suffix key expressions): ``shepherd replay`` leaves them out unless
+#: asked to ``--actuate``.
+ACTUATION = ("ir/**", "mission/**", CAMERA_GOAL)
+
 #: suffix -> model of its payload; ``None`` marks raw frame bytes with a FrameHeader attachment.
 TOPICS: dict[str, type[Message] | None] = {
     FRAME: None,

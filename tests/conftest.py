@@ -12,6 +12,7 @@ import sys
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
@@ -116,10 +117,13 @@ async def wait_matched(bus: Bus, suffix: str, timeout: float = 10.0) -> None:
     publisher = bus.session.declare_publisher(bus.keys.key(suffix))
     try:
         deadline = time.monotonic() + timeout
-        while not publisher.matching_status.matching:
+        # zenoh's stub says bool; at run time it is a MatchingStatus with ``matching``
+        status: Any = publisher.matching_status
+        while not status.matching:
             if time.monotonic() > deadline:
                 pytest.fail(f"no subscriber matched {bus.keys.key(suffix)} in {timeout:.0f} s")
             await asyncio.sleep(0.005)
+            status = publisher.matching_status
     finally:
         publisher.undeclare()
 

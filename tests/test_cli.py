@@ -1,22 +1,25 @@
 import asyncio
 import time
 
-from schemas import CameraPose, IrCommand, MissionGoal
-from schemas.keys import IR_COMMAND, MISSION_GOAL, ODOM
+from schemas import CameraPose, Command, Hold, IrCommand, MissionGoal
+from schemas.keys import IR_COMMAND, MISSION_GOAL, MISSION_HOLD, ODOM
 from tests.conftest import run_cli, spawn_cli
 
 
 def test_echo_shows_messages_published_by_another_process(router, make_bus):
-    echo = spawn_cli("echo", "shepherd/**", "--connect", router, "--count", "2",
+    echo = spawn_cli("echo", "shepherd/**", "--connect", router, "--count", "3",
                      "--duration", "20")
     bus = make_bus("pub")
     time.sleep(2.0)
     bus.put(ODOM, CameraPose(x=0.5, y=-0.25, yaw=0.0))
-    bus.put(IR_COMMAND, IrCommand(command="turn_left"))
+    bus.put(IR_COMMAND, IrCommand(command=Command.TURN_LEFT))
+    bus.put(MISSION_HOLD, Hold(hold=True, reason="\x1b[2J\rgone\u202e"))  # hostile text
     out, err = echo.communicate(timeout=30)
     assert echo.returncode == 0, err
     assert "camera/odom: x=50.0 cm y=-25.0 cm yaw=0.0°" in out
     assert "ir/command: turn_left (0x88)" in out
+    assert "mission/hold: hold=True \\x1b[2J\\x0dgone\\u202e" in out
+    assert "\x1b" not in out and "\r" not in out
 
 
 def test_typed_round_trip_between_processes(router, make_bus):

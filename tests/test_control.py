@@ -210,9 +210,10 @@ def test_lirc_backend_against_a_real_lircd(tmp_path: Path):
 
 def test_hot_swap_under_a_stream_of_commands_loses_none(router, make_bus):
     dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
-                            "services": {"ir_transmitter": {"backend": "log",
-                                                            "min_gap_s": 0.0,
-                                                            "repeat_window_s": 0.0}}})
+                            "services": {"ir_transmitter": {
+                                "backend": "log", "min_gap_s": 0.0, "repeat_window_s": 0.0,
+                                "allowed": [{"backend": "sim"}, {"backend": "serial",
+                                                                 "options": {"baud": 9600}}]}}})
     bus = make_bus("driver")
 
     async def go():
@@ -249,3 +250,18 @@ def test_the_service_feeds_the_firmware_watchdog(tmp_path: Path, router):
     beats = data.count(0)
     assert beats >= 8  # every 0.15 s: well inside the firmware's 0.4 s watchdog
     assert data[-1] == 0x8E and data.count(0x8E) == 1  # stop once, last, at shutdown
+
+
+def test_backend_requests_are_limited_to_what_the_deployment_file_allows():
+    from schemas import IrBackendRequest
+    from services.ir_transmitter.service import allowed_or_raise
+    config = IrSettings(backend="serial", options={"port": "/dev/ttyUSB0"},
+                        allowed=[{"backend": "lirc", "options": {"socket": "/run/lirc/lircd"}}])
+    allowed_or_raise(config, IrBackendRequest(backend="serial",
+                                              options={"port": "/dev/ttyUSB0"}))
+    allowed_or_raise(config, IrBackendRequest(backend="lirc",
+                                              options={"socket": "/run/lirc/lircd"}))
+    for backend, options in (("log", {}), ("sim", {}), ("serial", {"port": "/dev/ttyACM9"}),
+                             ("lirc", {"socket": "/tmp/evil"})):
+        with pytest.raises(ValueError, match="is not allowed by the deployment file"):
+            allowed_or_raise(config, IrBackendRequest(backend=backend, options=options))

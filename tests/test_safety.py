@@ -234,3 +234,48 @@ def test_a_clock_skew_between_hosts_neither_freezes_nor_hides_a_stale_pose(
 def test_wait_alive_names_the_missing_service(sessions):
     with pytest.raises(pytest.fail.Exception, match="not alive after 1 s: nobody"):
         wait_alive(sessions(), "nobody", timeout=1.0)
+
+
+def _recording(path: Path) -> None:
+    from mcap.writer import Writer
+
+    from schemas import CameraPose, MissionGoal
+    with open(path, "wb") as f:
+        writer = Writer(f)
+        writer.start()
+        for i, (key, msg) in enumerate([
+                ("shepherd/camera/odom", CameraPose(x=0.1, y=0.0, yaw=0.0)),
+                ("shepherd/ir/command", IrCommand(command=Command.WALK_FORWARD)),
+                ("shepherd/mission/goal", MissionGoal(waypoints=[(1.0, 0.0)])),
+                ("shepherd/camera/goal", CameraPose(x=0.0, y=0.0, yaw=0.0))]):
+            schema = writer.register_schema(name=f"shepherd.{type(msg).__name__}",
+                                            encoding="jsonschema", data=b"{}")
+            channel = writer.register_channel(topic=key, message_encoding="json",
+                                              schema_id=schema)
+            writer.add_message(channel, log_time=i * 1000, publish_time=i * 1000,
+                               data=msg.model_dump_json().encode())
+        writer.finish()
+
+
+@pytest.mark.parametrize("flags,expected", [
+    ((), ["shepherd/camera/odom"]),
+    (("--actuate",), ["shepherd/camera/odom", "shepherd/ir/command", "shepherd/mission/goal",
+                      "shepherd/camera/goal"]),
+    (("--to-namespace", "offline"), ["offline/camera/odom"]),
+])
+def test_replay_leaves_out_actuation_unless_asked_and_can_change_namespace(
+        tmp_path: Path, router: str, sessions, flags: tuple[str, ...], expected: list[str]):
+    from tests.conftest import run_cli
+    rec = tmp_path / "run.mcap"
+    _recording(rec)
+    got: list[str] = []
+    s = sessions()
+    sub = s.declare_subscriber("**", lambda sample: got.append(str(sample.key_expr)))
+    time.sleep(0.3)
+    out = run_cli("replay", str(rec), "--connect", router, *flags)
+    time.sleep(0.3)
+    sub.undeclare()
+    assert out.returncode == 0, out.stderr
+    assert got == expected
+    if not flags:
+        assert "left out 3 on actuation keys" in out.stdout

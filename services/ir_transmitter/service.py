@@ -15,7 +15,7 @@ import logging
 import time
 from typing import Any, Literal
 
-from pydantic import Field
+from pydantic import BaseModel, ConfigDict, Field
 
 from schemas import Command, IrBackendRequest, IrBackendStatus, IrCommand
 from schemas.keys import IR_BACKEND, IR_COMMAND, SIM_IR
@@ -23,10 +23,23 @@ from services.ir_transmitter.backends import BackendError, IrBackend, make_backe
 from services.runtime.config import ServiceSettings
 from services.runtime.context import ServiceContext
 
+BackendName = Literal["serial", "lirc", "sim", "log"]
+
+
+class BackendChoice(BaseModel):
+    """A backend with its options (serial port, LIRC socket or host, ...)."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    backend: BackendName
+    options: dict[str, Any] = Field(default_factory=dict)
+
 
 class Settings(ServiceSettings):
-    backend: Literal["serial", "lirc", "sim", "log"] = "log"
+    backend: BackendName = "log"
     options: dict[str, Any] = Field(default_factory=dict)
+    allowed: list[BackendChoice] = Field(default_factory=list, description=(
+        "what a put on ir/backend may switch to, besides the backend above (exactly these "
+        "options); anything else is rejected"))
     min_gap_s: float = Field(default=0.06, ge=0.0, description="between IR frames (>= 30 ms)")
     repeat_window_s: float = Field(default=0.5, ge=0.0)
     fresh_s: float = Field(default=1.0, gt=0.0)
@@ -119,6 +132,16 @@ class Transmitter:
         old.close()
 
 
+def allowed_or_raise(config: Settings, request: IrBackendRequest) -> None:
+    """Raise ValueError unless the deployment file allows switching to ``request``."""
+    choice = BackendChoice(backend=request.backend, options=request.options)
+    allowed = [BackendChoice(backend=config.backend, options=config.options), *config.allowed]
+    if choice not in allowed:
+        listed = "; ".join(f"{a.backend} {a.options}" for a in allowed)
+        raise ValueError(f"{request.backend} {request.options} is not allowed by the "
+                         f"deployment file (allowed: {listed})")
+
+
 async def main(ctx: ServiceContext, config: Settings) -> None:
     bus, log = ctx.bus, ctx.log
 
@@ -151,6 +174,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
             if req_task in done:
                 req = req_task.result()
                 try:
+                    allowed_or_raise(config, req)
                     new = make_backend(req.backend, dict(req.options), publish_sim)
                 except Exception as err:
                     tx.last_error = f"backend request rejected: {err}"

@@ -160,8 +160,13 @@ def cmd_replay(args: argparse.Namespace) -> int:
     if not Path(args.inp).is_file():
         print(f"shepherd: no such recording: {args.inp}", file=sys.stderr)
         return 2
-    return asyncio.run(replay(_session_settings(args), Path(args.inp), args.speed,
-                              args.only or None))
+    try:
+        return asyncio.run(replay(_session_settings(args), Path(args.inp), args.speed,
+                                  args.only or None, namespace=args.namespace,
+                                  to_namespace=args.to_namespace, actuate=args.actuate))
+    except ValueError as err:
+        print(f"shepherd: {err}", file=sys.stderr)
+        return 2
 
 
 def cmd_soak(args: argparse.Namespace) -> int:
@@ -271,6 +276,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--speed", type=float, default=1.0)
     p.add_argument("--only", action="append", default=[], metavar="KEY_EXPR",
                    help="replay only matching keys (repeatable)")
+    p.add_argument("--actuate", action="store_true",
+                   help="also replay the keys that move a robot (ir/**, mission/**, camera/goal)")
+    p.add_argument("--to-namespace", metavar="NS",
+                   help="republish <namespace>/... under NS/... (e.g. to watch a run offline)")
     p.set_defaults(func=cmd_replay)
 
     p = sub.add_parser("soak", help="run the simulated mission back and forth; watch memory")

@@ -7,9 +7,9 @@ import time
 
 from schemas import Keys, Message
 from schemas.keys import model_or_none
-from services.runtime.bus import Bus
+from services.runtime.bus import MAX_JSON_BYTES, Bus
 from services.runtime.session import ZenohSettings, open_session
-from services.tools.pretty import describe
+from services.tools.pretty import describe, printable
 
 
 async def echo(settings: ZenohSettings, namespace: str, key_expr: str, *,
@@ -33,23 +33,23 @@ async def echo(settings: ZenohSettings, namespace: str, key_expr: str, *,
                 key = str(sample.key_expr)
                 suffix = keys.suffix(key)
                 model = model_or_none(suffix)
-                if suffix == "camera/frame":
-                    frame = bus.decode_frame(sample)
+                if suffix == "camera/frame":  # checked, never decoded: nothing to allocate
+                    h = bus.frame_header(sample)
                     now = time.monotonic()
                     frame_times = [t for t in frame_times if now - t < 2.0] + [now]
                     rate = (len(frame_times) - 1) / max(now - frame_times[0], 1e-9)
-                    if frame is None:
-                        line = "invalid frame (see warning)"
-                    else:
-                        h = frame.header
-                        line = (f"seq={h.seq} {h.width}x{h.height} {h.encoding.value} "
-                                f"{len(sample.payload.to_bytes()) / 1e3:.1f} kB {rate:.1f} fps")
+                    line = ("invalid frame (see warning)" if h is None else
+                            f"seq={h.seq} {h.width}x{h.height} {h.encoding.value} "
+                            f"{len(sample.payload) / 1e3:.1f} kB {rate:.1f} fps")
+                elif len(sample.payload) > MAX_JSON_BYTES:
+                    line = (f"{len(sample.payload)} bytes, over the {MAX_JSON_BYTES}-byte "
+                            "limit: not shown")
                 elif model is not None and not raw:
                     msg = bus.decode(sample, model)
                     line = "invalid (see warning)" if msg is None else describe(msg)
                 else:
                     line = sample.payload.to_bytes().decode(errors="replace")
-                print(f"{suffix}: {line}", flush=True)
+                print(printable(f"{suffix}: {line}"), flush=True)
                 seen += 1
         finally:
             bus.close()
@@ -63,7 +63,7 @@ async def publish_once(settings: ZenohSettings, namespace: str, suffix: str,
         bus = Bus(session, Keys(namespace), "cli")
         await asyncio.sleep(settle_s)
         bus.put(suffix, message)
-        print(f"{suffix}: {describe(message)}")
+        print(printable(f"{suffix}: {describe(message)}"))
         await asyncio.sleep(0.1)
         bus.close()
     return 0

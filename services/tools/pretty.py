@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+import unicodedata
 
 from schemas import (
     CameraGoal,
@@ -28,6 +29,14 @@ def deg(a: float | None) -> str:
 
 def age_ms(stamp_ns: int) -> str:
     return f"{(time.time_ns() - stamp_ns) / 1e6:.1f} ms"
+
+
+def printable(text: str) -> str:
+    """``text`` with control characters (terminal escapes, carriage returns, bidi overrides)
+    shown as escapes, so a string from the wire cannot rewrite the terminal."""
+    return "".join(c if not unicodedata.category(c).startswith("C") else
+                   (f"\\x{ord(c):02x}" if ord(c) < 0x100 else f"\\u{ord(c):04x}")
+                   for c in text)
 
 
 def describe(message: Message) -> str:

@@ -4,7 +4,8 @@ One MCAP channel per key. JSON messages keep their bytes, with the model's JSON 
 (encoding ``jsonschema``) so any MCAP viewer can decode them. Frames are stored losslessly
 as ``shepherd.frame``: a 4-byte big-endian header length, the FrameHeader JSON, then the
 payload (raw pixels, or JPEG when recorded with ``--jpeg Q``). Log time is the receive time;
-replay publishes at the recorded pace (or ``speed`` times faster).
+replay publishes at the recorded pace (or ``speed`` times faster), without the keys that
+move a robot unless asked, and optionally under another namespace.
 """
 
 from __future__ import annotations
@@ -13,6 +14,7 @@ import asyncio
 import json
 import struct
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import zenoh
@@ -20,7 +22,7 @@ from mcap.reader import make_reader
 from mcap.writer import Writer
 
 from schemas import Keys
-from schemas.keys import model_or_none
+from schemas.keys import ACTUATION, model_or_none
 from services.runtime.bus import Bus
 from services.runtime.frames import FRAME_ENCODING, JPEG_ENCODING, encode_frame
 from services.runtime.session import ZenohSettings, open_session
@@ -109,10 +111,25 @@ async def record(settings: ZenohSettings, namespace: str, out: Path, key_exprs: 
     return 0
 
 
+def is_actuation(key: str, namespace: str = "shepherd") -> bool:
+    """A key that moves a robot (``ir/**``, ``mission/**``, ``camera/goal``)."""
+    prefix = namespace + "/"
+    if not key.startswith(prefix):
+        return False
+    ke = zenoh.KeyExpr(key[len(prefix):])
+    return any(zenoh.KeyExpr(a).intersects(ke) for a in ACTUATION)
+
+
 async def replay(settings: ZenohSettings, inp: Path, speed: float = 1.0,
-                 only: list[str] | None = None, log=print) -> int:
-    """Publish a recording back at its recorded pace (times ``speed``)."""
-    published = 0
+                 only: list[str] | None = None, log: Callable[[str], None] = print, *,
+                 namespace: str = "shepherd", to_namespace: str | None = None,
+                 actuate: bool = False) -> int:
+    """Publish a recording back at its recorded pace (times ``speed``). Keys that move a robot
+    are left out unless ``actuate``; ``to_namespace`` republishes ``<namespace>/...`` under
+    ``<to_namespace>/...``."""
+    if to_namespace is not None:
+        Keys(to_namespace)  # raises ValueError for an unusable namespace
+    published = skipped = 0
     with open_session(settings) as session, open(inp, "rb") as f:
         reader = make_reader(f)
         await asyncio.sleep(0.5)  # let subscribers be discovered
@@ -122,6 +139,11 @@ async def replay(settings: ZenohSettings, inp: Path, speed: float = 1.0,
             key = channel.topic
             if only and not any(zenoh.KeyExpr(o).intersects(zenoh.KeyExpr(key)) for o in only):
                 continue
+            if not actuate and is_actuation(key, namespace):
+                skipped += 1
+                continue
+            if to_namespace is not None and key.startswith(namespace + "/"):
+                key = f"{to_namespace}/{key[len(namespace) + 1:]}"
             if start_log is None:
                 start_log = message.log_time
             due = (message.log_time - start_log) / 1e9 / speed
@@ -141,5 +163,7 @@ async def replay(settings: ZenohSettings, inp: Path, speed: float = 1.0,
                             encoding=zenoh.Encoding(json_enc) if json_enc else None)
             published += 1
         await asyncio.sleep(0.2)
-    log(f"replayed {published} messages from {inp}")
+    log(f"replayed {published} messages from {inp}"
+        + (f"; left out {skipped} on actuation keys (ir/**, mission/**, camera/goal: "
+           "--actuate to include them)" if skipped else ""))
     return 0
