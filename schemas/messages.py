@@ -244,6 +244,9 @@ class IrBackendStatus(Message):
     failed: int = 0
     coalesced: int = 0
     deadman_stops: int = Field(default=0, description="stops sent because commands stopped")
+    unacked: int = Field(default=0, description="codes the IR firmware did not acknowledge")
+    firmware_watchdog_stops: int = Field(default=0, description=(
+        "stops the IR firmware's own watchdog sent (the host went quiet)"))
     connected: bool = True
     last_error: str = ""
 

@@ -10,7 +10,7 @@ from schemas import Command, IrBackendRequest, IrBackendStatus, IrCommand, Phase
 from schemas.keys import IR_BACKEND, IR_COMMAND
 from services.camera_planner.planner import CameraPlanner, PlannerParams
 from services.core.world import CircleObstacle, World
-from services.ir_transmitter.backends import LircBackend, SerialBackend
+from services.ir_transmitter.backends import BackendError, LircBackend, SerialBackend
 from services.ir_transmitter.protocol import decode_timings, lircd_conf, timings_us
 from services.ir_transmitter.service import Settings as IrSettings
 from services.ir_transmitter.service import Transmitter
@@ -125,7 +125,7 @@ def test_shipped_lircd_conf_is_the_generated_one():
 
 
 def test_serial_backend_writes_the_codes_and_survives_unplug(tmp_path: Path):
-    pty = Pty(tmp_path / "ttyRobo")
+    pty = Pty(tmp_path / "ttyRobo", firmware=True)
     tx = Transmitter(SerialBackend(str(pty.link), 115200, reopen_s=0.05),
                      IrSettings(min_gap_s=0.0, repeat_window_s=0.0, fresh_s=1.0))
 
@@ -200,7 +200,6 @@ def test_lirc_backend_against_a_real_lircd(tmp_path: Path):
             else:
                 current.append(v)
         assert [decode_timings(f) for f in frames] == [IrCommand(command=c).code for c in sent]
-        from services.ir_transmitter.backends import BackendError
         with pytest.raises(BackendError, match="unreachable"):
             LircBackend(socket=str(tmp_path / "nope")).send(IrCommand(command=Command.STOP))
     finally:
@@ -240,7 +239,7 @@ def test_hot_swap_under_a_stream_of_commands_loses_none(router, make_bus):
 
 
 def test_the_service_feeds_the_firmware_watchdog(tmp_path: Path, router):
-    pty = Pty(tmp_path / "ttyRobo")
+    pty = Pty(tmp_path / "ttyRobo", firmware=True)
     dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
                             "services": {"ir_transmitter": {
                                 "backend": "serial", "options": {"port": str(pty.link)}}}})
@@ -265,3 +264,58 @@ def test_backend_requests_are_limited_to_what_the_deployment_file_allows():
                              ("lirc", {"socket": "/tmp/evil"})):
         with pytest.raises(ValueError, match="is not allowed by the deployment file"):
             allowed_or_raise(config, IrBackendRequest(backend=backend, options=options))
+
+
+def test_serial_backend_sends_nothing_before_the_firmware_says_it_is_ready(tmp_path: Path):
+    """An Arduino resets when its port opens: the backend waits for the firmware's hello."""
+    pty = Pty(tmp_path / "ttyRobo", firmware=True, hello_after_s=0.5)
+    backend = SerialBackend(str(pty.link), ready_timeout_s=3.0)
+    try:
+        assert not backend.connected
+        t0 = time.monotonic()
+        backend.send(IrCommand(command=Command.WALK_FORWARD))
+        assert time.monotonic() - t0 >= 0.4 and backend.connected
+        assert pty.read(1) == bytes([0x86])
+    finally:
+        backend.close()
+        pty.unplug()
+
+
+def test_serial_backend_without_the_firmware_says_so(tmp_path: Path):
+    pty = Pty(tmp_path / "ttyRobo")  # a port nobody answers on
+    backend = SerialBackend(str(pty.link), ready_timeout_s=0.3)
+    try:
+        with pytest.raises(BackendError, match="no hello from the IR firmware"):
+            backend.send(IrCommand(command=Command.STOP))
+        assert not backend.connected
+        plain = SerialBackend(str(pty.link), handshake=False)  # a device without it
+        plain.send(IrCommand(command=Command.STOP))
+        assert plain.connected and pty.read(1) == bytes([0x8E])
+        plain.close()
+    finally:
+        backend.close()
+        pty.unplug()
+
+
+def test_serial_backend_counts_codes_the_firmware_did_not_acknowledge(tmp_path: Path):
+    pty = Pty(tmp_path / "ttyRobo", firmware=True, ack=False)
+    backend = SerialBackend(str(pty.link), ack_timeout_s=0.2)
+    try:
+        backend.send(IrCommand(command=Command.WALK_FORWARD))
+        backend.send(IrCommand(command=Command.STOP))
+        time.sleep(0.3)
+        backend.heartbeat()
+        assert backend.unacked == 2
+    finally:
+        backend.close()
+        pty.unplug()
+    acked = Pty(tmp_path / "ttyRobo2", firmware=True)
+    backend = SerialBackend(str(acked.link), ack_timeout_s=0.2)
+    try:
+        backend.send(IrCommand(command=Command.WALK_FORWARD))
+        time.sleep(0.3)
+        backend.heartbeat()
+        assert backend.unacked == 0
+    finally:
+        backend.close()
+        acked.unplug()

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from schemas import ROBOSAPIEN_CODES
-from services.ir_transmitter.protocol import CARRIER_HZ, T_US, timings_us
+from services.ir_transmitter.protocol import CARRIER_HZ, FIRMWARE_HELLO, T_US, timings_us
 from services.ir_transmitter.waveform import decode_trace
 
 FIRMWARE = Path(__file__).resolve().parent.parent / "deploy" / "firmware"
@@ -49,7 +49,15 @@ def _simulate(build: Path, codes: list[int | str]) -> Simulation:
 
 def _run(build: Path, codes: list[int | str]) -> tuple[list, list[int]]:
     sim = _simulate(build, codes)
-    return sim.frames, sim.echoed
+    assert bytes(sim.echoed[:len(FIRMWARE_HELLO)]) == FIRMWARE_HELLO
+    return sim.frames, sim.echoed[len(FIRMWARE_HELLO):]
+
+
+def test_the_firmware_announces_itself_before_anything_else(build: Path):
+    sim = _simulate(build, [0x86])
+    assert bytes(sim.echoed[:len(FIRMWARE_HELLO)]) == FIRMWARE_HELLO
+    assert sim.echoed[len(FIRMWARE_HELLO):] == [0x86]
+    assert [f.code for f in sim.frames] == [0x86]
 
 
 def test_every_command_is_emitted_with_the_right_carrier_and_timing(build: Path):
@@ -76,7 +84,7 @@ def test_watchdog_stops_the_robot_within_half_a_second_of_silence(build: Path):
     # walk, three heartbeats, then the host goes quiet (crash, pulled cable)
     sim = _simulate(build, [0x86, "wait:100", 0, "wait:100", 0, "wait:100", 0, "wait:1000"])
     assert [f.code for f in sim.frames] == [0x86, 0x8E]
-    assert sim.echoed == [0x86, ord("!")]
+    assert sim.echoed == [*FIRMWARE_HELLO, 0x86, ord("!")]
     stop_start = next(t for t in sim.rising_s if t > sim.fed_s[-1])
     assert 0.35 < stop_start - sim.fed_s[-1] < 0.5, stop_start - sim.fed_s[-1]
 

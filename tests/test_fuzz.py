@@ -2,20 +2,34 @@
 
 import asyncio
 import json
+import math
 import threading
 import time
+from collections.abc import Iterator
 
 import numpy as np
 import pytest
 import zenoh
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from pydantic import ValidationError
 
 from schemas import (
+    CameraGoal,
+    CameraIntrinsics,
+    CameraPose,
+    Command,
+    Hold,
+    HumanoidPose,
     IrBackendRequest,
     IrCommand,
     MarkerVertices,
+    Message,
+    MissionGoal,
+    MissionState,
+    Phase,
     ServiceStats,
+    SimTruth,
 )
 from schemas.keys import FRAME, IR_BACKEND, IR_COMMAND, SIM_IR, VERTICES
 from services.runtime.config import parse_deployment
@@ -89,7 +103,10 @@ def frame_inputs(draw: st.DrawFn) -> tuple[bytes, bytes | None]:
     return draw(st.binary(max_size=3000)), header
 
 
-def test_fuzz_every_subscribed_key_of_every_service(router, sessions):
+@pytest.fixture
+def deployment(router: str, sessions) -> Iterator[tuple[zenoh.Session, list[str]]]:
+    """Every service but the frame source, in a thread of its own, and a session beside it;
+    the services are stopped (their finally blocks run) at teardown."""
     cam = str(ROOT / "deploy/paper-camera.toml")
     dep = parse_deployment({
         "zenoh": {"connect": [router], "multicast_scouting": False},
@@ -98,7 +115,8 @@ def test_fuzz_every_subscribed_key_of_every_service(router, sessions):
                      "camera_planner": {}, "ir_transmitter": {"backend": "sim"},
                      "monitor": {"run_dir": None, "exit_when_done": False, "progress": False}}})
     loop = asyncio.new_event_loop()
-    task = loop.create_task(run_deployment(dep, duration=120))
+    task = loop.create_task(run_deployment(dep, duration=300))
+
     def serve() -> None:
         try:
             loop.run_until_complete(task)
@@ -110,7 +128,28 @@ def test_fuzz_every_subscribed_key_of_every_service(router, sessions):
     thread = threading.Thread(target=serve, daemon=True)
     thread.start()
     s = sessions()
-    wait_alive(s, *dep.services)
+    try:
+        wait_alive(s, *dep.services)
+        yield s, list(dep.services)
+    finally:
+        loop.call_soon_threadsafe(task.cancel)
+        thread.join(10)
+    assert not thread.is_alive()
+
+
+def _stats(s: zenoh.Session) -> dict[str, ServiceStats]:
+    alive = {str(r.ok.key_expr).rsplit("/", 1)[-1]
+             for r in s.liveliness().get("shepherd/alive/**", timeout=2.0) if r.ok}
+    assert set(SERVICES) <= alive, f"services gone after fuzzing: {set(SERVICES) - alive}"
+    stats = {}
+    for name in SERVICES:
+        replies = [r.ok for r in s.get(f"shepherd/stats/{name}", timeout=2.0) if r.ok]
+        stats[name] = ServiceStats.model_validate_json(replies[0].payload.to_bytes())
+    return stats
+
+
+def test_fuzz_every_subscribed_key_of_every_service(deployment):
+    s, _ = deployment
     tried = [0]
 
     @settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
@@ -127,13 +166,7 @@ def test_fuzz_every_subscribed_key_of_every_service(router, sessions):
 
     throw()
     time.sleep(1.0)
-    alive = {str(r.ok.key_expr).rsplit("/", 1)[-1]
-             for r in s.liveliness().get("shepherd/alive/**", timeout=2.0) if r.ok}
-    assert set(SERVICES) <= alive, f"services gone after fuzzing: {set(SERVICES) - alive}"
-    stats = {}
-    for name in SERVICES:
-        replies = [r.ok for r in s.get(f"shepherd/stats/{name}", timeout=2.0) if r.ok]
-        stats[name] = ServiceStats.model_validate_json(replies[0].payload.to_bytes())
+    stats = _stats(s)
     for name, st_ in stats.items():
         assert st_.restarts == 0, f"{name} crashed"
         rejected = sum(n for reasons in st_.rejected.values() for n in reasons.values())
@@ -167,9 +200,137 @@ def test_fuzz_every_subscribed_key_of_every_service(router, sessions):
     mine = [v for v in verts if v.seq >= 999990]
     assert mine and mine[0].found, f"{len(verts)} vertices: {sorted({v.reason for v in verts})}"
     assert np.abs(np.array(mine[0].vertices_px) - r.vertices_px).max() < 0.5
-    loop.call_soon_threadsafe(task.cancel)
-    thread.join(10)
-    assert not thread.is_alive()
     total = sum(n for st_ in stats.values() for r_ in st_.rejected.values() for n in r_.values())
     print(f"\nfuzz: {tried[0]} inputs on {len(SUBSCRIBED)} keys; {total} rejections counted "
           f"by {len(stats)} services; none crashed")
+
+
+# -- schema-valid but hostile values ---------------------------------------------------------
+
+_edge = st.sampled_from([0.0, -0.0, 5e-324, 1e-300, -1e-300, 1e-12, 1.0, -1.0, 1e12, -1e12,
+                         1e300, -1e300, 1.7976931348623157e308, -1.7976931348623157e308])
+finite = _edge | st.floats(allow_nan=False, allow_infinity=False)
+coord = st.sampled_from([0.0, 1e-12, -1e-12, 1e4, -1e4, 9999.999999]) | st.floats(-1e4, 1e4)
+stamp = st.sampled_from([0, 1, 2**31, 2**53 + 1, 2**63 - 1, 2**64, 10**30]) | st.integers(0, 2**70)
+angle = st.sampled_from([0.0, math.pi, -math.pi, 1e6, -1e300, 1e300]) | finite
+pixel = st.sampled_from([0.0, 319.5, 1e-9, -1e6, 1e6, 1e300, -1e300]) | finite
+size = st.sampled_from([1, 2, 640, 4096, 16384, 2**31, 2**63]) | st.integers(1, 2**40)
+
+
+@st.composite
+def vertices(draw: st.DrawFn) -> list[tuple[float, float]]:
+    kind = draw(st.sampled_from(["coincident", "collinear", "huge", "tiny", "any", "unordered"]))
+    if kind == "coincident":
+        p = (draw(pixel), draw(pixel))
+        return [p] * 4
+    if kind == "collinear":
+        a, d = draw(pixel), draw(finite)
+        return [(a + k * d, a - k * d) for k in range(4)]
+    if kind == "tiny":
+        u, v = draw(st.floats(0, 640)), draw(st.floats(0, 480))
+        e = draw(st.sampled_from([1e-12, 1e-9, 1e-6]))
+        return [(u - e, v), (u, v - e), (u + e, v), (u, v + e)]
+    if kind == "huge":
+        e = draw(st.sampled_from([1e6, 1e12, 1e300]))
+        return [(-e, 0.0), (0.0, -e), (e, 0.0), (0.0, e)]
+    pts = [(draw(pixel), draw(pixel)) for _ in range(4)]
+    return pts[::-1] if kind == "unordered" else pts
+
+
+def _unit_quaternion(draw: st.DrawFn) -> list[float]:
+    q = np.array([draw(st.floats(-1, 1)) for _ in range(4)])
+    n = float(np.linalg.norm(q))
+    return [0.0, 0.0, 0.0, 1.0] if n < 1e-3 else list(q / n)
+
+
+@st.composite
+def hostile_messages(draw: st.DrawFn) -> dict[str, Message]:
+    """One schema-valid message per subscribed key, with values at the edges of validity."""
+    marker = {"position": [draw(coord), draw(coord), draw(coord)],
+              "quaternion": _unit_quaternion(draw)}
+    world_pose = {"x": draw(coord), "y": draw(coord), "yaw": draw(angle)}
+    k = [[draw(st.sampled_from([1e-300, 1e-9, 757.25, 1e300])), draw(finite), draw(finite)],
+         [0.0, draw(st.sampled_from([1e-300, 754.24, 1e300])), draw(finite)], [0.0, 0.0, 1.0]]
+    found = draw(st.booleans())
+    raw: dict[str, tuple[type[Message], dict[str, object]]] = {
+        "marker/vertices": (MarkerVertices, {
+            "seq": draw(stamp), "stamp_ns": draw(stamp), "found": found,
+            "vertices_px": draw(vertices()) if found else None,
+            "area_ratio": draw(st.floats(0, 1)), "residual_px": draw(st.floats(0, 1e300)),
+            "width": draw(st.sampled_from([0, 640, 2**40])),
+            "height": draw(st.sampled_from([0, 480, 2**40])), "reason": draw(st.text())}),
+        "camera/odom": (CameraPose, {"stamp_ns": draw(stamp), **world_pose}),
+        "camera/intrinsics": (CameraIntrinsics, {
+            "width": draw(size), "height": draw(size), "K": k,
+            "dist": [draw(finite) for _ in range(5)], "rms_px": draw(st.floats(0, 1e300))}),
+        "humanoid/pose": (HumanoidPose, {
+            "seq": draw(stamp), "stamp_ns": draw(stamp), **world_pose, "marker_in_camera": marker,
+            "reprojection_px": draw(st.floats(0, 1e300)),
+            "covariance": draw(st.none() | st.just([[draw(finite)] * 3] * 3)),
+            "area_ratio": draw(st.floats(0, 1))}),
+        "mission/goal": (MissionGoal, {
+            "stamp_ns": draw(stamp),
+            "waypoints": draw(st.lists(st.tuples(coord, coord), max_size=1000)),
+            "tolerance_m": draw(st.none() | st.sampled_from([1e-300, 1e-9, 1e300]))}),
+        "mission/hold": (Hold, {"stamp_ns": draw(stamp), "hold": draw(st.booleans()),
+                                "reason": draw(st.text(max_size=2000))}),
+        "mission/state": (MissionState, {
+            "stamp_ns": draw(stamp), "phase": draw(st.sampled_from(list(Phase))),
+            "waypoint_index": draw(stamp), "distance_m": draw(st.none() | finite),
+            "heading_error_rad": draw(st.none() | angle),
+            "last_command": draw(st.sampled_from(list(Command)))}),
+        "ir/command": (IrCommand, {"stamp_ns": draw(stamp),
+                                   "command": draw(st.sampled_from(list(Command)))}),
+        "sim/ir": (IrCommand, {"stamp_ns": draw(stamp),
+                               "command": draw(st.sampled_from(list(Command)))}),
+        "camera/goal": (CameraGoal, {"stamp_ns": draw(stamp), **world_pose,
+                                     "reason": draw(st.text(max_size=50))}),
+        "sim/truth": (SimTruth, {"stamp_ns": draw(stamp), "seq": draw(stamp),
+                                 "humanoid": world_pose, "camera": world_pose,
+                                 "marker_in_camera": marker}),
+    }
+    out: dict[str, Message] = {}
+    for key, (model, body) in raw.items():
+        try:
+            out[key] = model.model_validate(body)
+        except ValidationError:
+            continue  # a combination the schema refuses is not the point here
+    return out
+
+
+def test_schema_valid_hostile_values_never_kill_a_service(deployment):
+    """About 10,000 schema-valid messages with extreme values (coincident, collinear, huge
+    and tiny vertices; degenerate intrinsics; stamps at 0 and far beyond 2^63; angles of
+    1e300 rad; 1000-waypoint missions) on every subscribed key: no service restarts."""
+    s, _ = deployment
+    sent = [0]
+    keys = [k for k in SUBSCRIBED if k not in ("camera/frame", "ir/backend")]
+
+    @settings(max_examples=10_000 // len(keys), deadline=None,
+              suppress_health_check=list(HealthCheck))
+    @given(hostile_messages())
+    def throw(messages: dict[str, Message]) -> None:
+        for key, msg in messages.items():
+            s.put(f"shepherd/{key}", msg.model_dump_json(),
+                  encoding=zenoh.Encoding(msg.zenoh_encoding()))
+            sent[0] += 1
+
+    throw()
+    time.sleep(2.0)
+    stats = _stats(s)
+    assert {name: st_.restarts for name, st_ in stats.items()} == dict.fromkeys(SERVICES, 0)
+    # and they still work: a real frame becomes vertices and a command reaches the humanoid
+    verts: list[MarkerVertices] = []
+    sub = s.declare_subscriber("shepherd/" + VERTICES, lambda x: verts.append(
+        MarkerVertices.model_validate_json(x.payload.to_bytes())))
+    time.sleep(0.3)
+    r = render_marker(0.3)
+    for k in range(8):
+        header, payload = encode_frame(r.image, 999990 + k, time.time_ns())
+        s.put("shepherd/" + FRAME, payload, attachment=header.model_dump_json().encode())
+        time.sleep(0.23)
+        if any(v.seq >= 999990 and v.found for v in verts):
+            break
+    sub.undeclare()
+    assert any(v.seq >= 999990 and v.found for v in verts)
+    print(f"\nhostile fuzz: {sent[0]} schema-valid inputs on {len(keys)} keys; restarts 0")

@@ -3,12 +3,15 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from schemas import CameraPose, HumanoidPose, MarkerVertices
 from schemas.keys import HUMANOID_POSE, ODOM, VERTICES
 from services.core.camera import CameraModel, undistort_px
 from services.core.geometry import T_floor, inv_T
 from services.core.mounts import Geometry
+from services.pose_estimator import service as svc
 from services.pose_estimator.estimate import (
     estimate_marker_pose,
     humanoid_floor_pose,
@@ -242,7 +245,6 @@ def test_odometry_is_interpolated_at_the_frame_stamp_and_held_only_near_it():
 
 
 def test_service_waits_briefly_for_odometry_that_trails_the_vertices():
-    import services.pose_estimator.service as svc
 
     class Mailbox:
         def __init__(self):
@@ -276,7 +278,6 @@ def test_service_waits_briefly_for_odometry_that_trails_the_vertices():
 
 
 def test_service_uses_its_tilt_prior_setting(monkeypatch):
-    import services.pose_estimator.service as svc
     seen: dict = {}
     original = svc.estimate_marker_pose
 
@@ -302,3 +303,42 @@ def test_camera_model_refuses_distortion_it_cannot_represent():
         CameraModel(K, [-0.2, 0.1, 0, 0, 0.01, 0.3, 0, 0])
     with pytest.raises(ValueError, match="3x3"):
         CameraModel(np.eye(2))
+
+
+_px = st.sampled_from([0.0, 1e-9, 319.5, -1e6, 1e6, 1e300, -1e300, 5e-324]) | st.floats(
+    -1e4, 1e4)
+
+
+@st.composite
+def _hostile_vertices(draw: st.DrawFn) -> list[tuple[float, float]]:
+    kind = draw(st.sampled_from(["coincident", "collinear", "tiny", "huge", "any"]))
+    if kind == "coincident":
+        return [(draw(_px), draw(_px))] * 4
+    if kind == "collinear":
+        a, d = draw(_px), draw(st.floats(-1e3, 1e3))
+        return [(a + k * d, 2 * a - k * d) for k in range(4)]
+    if kind == "tiny":
+        u, v, e = draw(st.floats(0, 640)), draw(st.floats(0, 480)), draw(
+            st.sampled_from([1e-12, 1e-9, 1e-6]))
+        return [(u - e, v), (u, v - e), (u + e, v), (u, v + e)]
+    if kind == "huge":
+        e = draw(st.sampled_from([1e6, 1e12, 1e300]))
+        return [(-e, 0.0), (0.0, -e), (e, 0.0), (0.0, e)]
+    return [(draw(_px), draw(_px)) for _ in range(4)]
+
+
+@settings(max_examples=400, deadline=None)
+@given(_hostile_vertices(), st.integers(0, 2**70), st.booleans())
+def test_hostile_vertices_give_a_pose_or_a_reason_never_a_crash(vertices, stamp, moving):
+    """Every schema-valid vertex set is a valid pose message or a PoseError with a reason."""
+    est = svc.PoseEstimator(CAM, Geometry(), svc.Settings(
+        static_camera_pose=None if moving else (0.0, 0.0, 0.0)))
+    est.odom.add(CameraPose(stamp_ns=stamp, x=1e4, y=-1e4, yaw=1e300))
+    msg = MarkerVertices(seq=1, stamp_ns=stamp, found=True, vertices_px=tuple(vertices),
+                         width=640, height=480)
+    try:
+        pose = est.estimate(msg)
+    except PoseError as err:
+        assert str(err)
+        return
+    assert HumanoidPose.model_validate_json(pose.model_dump_json()) == pose

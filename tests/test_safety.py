@@ -20,14 +20,15 @@ import pytest
 
 from schemas import Command, HumanoidPose, IrBackendStatus, IrCommand, MarkerInCamera
 from schemas.keys import FRAME, HUMANOID_POSE, IR_BACKEND, IR_COMMAND, SIM_IR
-from services.runtime.bus import MAX_JSON_BYTES
 from services.runtime.config import parse_deployment
 from services.runtime.frames import FrameError, check_frame, encode_frame, jpeg_dimensions
 from services.runtime.launcher import run_deployment
+from services.runtime.session import Limits
 from tests.conftest import spawn_cli, wait_alive, wait_alive_async, wait_matched
 from tests.helpers.pty import Pty
 
 WALK, STOP = 0x86, 0x8E
+SIDE = Limits().max_frame_side
 
 
 def _pose(x: float, stamp_offset_s: float = 0.0) -> HumanoidPose:
@@ -50,7 +51,7 @@ def test_a_lost_controller_host_ends_in_stop_on_the_serial_port_within_1s(
         tmp_path: Path, router: str, make_bus, loss: str):
     """The controller's host is stopped (SIGSTOP: its connection stays open, only the
     dead-man can tell) or killed (its liveliness token goes away) while the humanoid walks."""
-    pty = Pty(tmp_path / "ttyRobo")
+    pty = Pty(tmp_path / "ttyRobo", firmware=True)
     robot = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
                               "services": {"ir_transmitter": {
                                   "backend": "serial", "options": {"port": str(pty.link)}}}})
@@ -106,7 +107,7 @@ def test_a_command_whose_code_disagrees_with_its_name_is_rejected(router: str, m
         bus.session.put(key, json.dumps({"command": "stop", "code": 0x86}), encoding=encoding)
         bus.session.put(key, json.dumps({"command": "turn_left", "code": 0x88}),
                         encoding=encoding)
-        bus.session.put(key, json.dumps({"command": "stop", "pad": "x" * MAX_JSON_BYTES}),
+        bus.session.put(key, json.dumps({"command": "stop", "pad": "x" * Limits().max_json_bytes}),
                         encoding=encoding)
         got = [await heard.recv(timeout=5)]
         await asyncio.sleep(0.3)
@@ -140,16 +141,17 @@ def test_jpeg_dimensions_are_read_from_the_sof_marker_before_decoding():
     header, data = encode_frame(np.zeros((48, 64, 3), np.uint8), 1, 1, jpeg_quality=80)
     assert jpeg_dimensions(data) == (64, 48)
     attachment = header.model_dump_json().encode()
-    assert check_frame(attachment, len(data), lambda: data) == header
+    assert check_frame(attachment, len(data), lambda: data, SIDE) == header
     bomb = _bomb(30000, 30000)
     as_vga = header.model_copy(update={"width": 640, "height": 480}).model_dump_json().encode()
     with pytest.raises(FrameError, match="JPEG is 30000x30000, header says 640x480"):
-        check_frame(as_vga, len(bomb), lambda: bomb)
+        check_frame(as_vga, len(bomb), lambda: bomb, SIDE)
     honest = header.model_copy(update={"width": 8000, "height": 8000})
     with pytest.raises(FrameError, match="larger than the 4096x4096 limit"):
-        check_frame(honest.model_dump_json().encode(), len(bomb), lambda: _bomb(8000, 8000))
+        check_frame(honest.model_dump_json().encode(), len(bomb), lambda: _bomb(8000, 8000),
+                    SIDE)
     with pytest.raises(FrameError, match="no SOI"):
-        check_frame(as_vga, 6, lambda: b"nojpeg")
+        check_frame(as_vga, 6, lambda: b"nojpeg", SIDE)
 
 
 def _rss_mb() -> float:
@@ -279,3 +281,30 @@ def test_replay_leaves_out_actuation_unless_asked_and_can_change_namespace(
     assert got == expected
     if not flags:
         assert "left out 3 on actuation keys" in out.stdout
+
+
+def test_the_limits_table_sets_what_services_accept(router: str, make_bus):
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "limits": {"max_frame_side": 320, "max_json_bytes": 2048},
+                            "services": {"ir_transmitter": {"backend": "log"},
+                                         "vertex_extractor": {}}})
+    bus = make_bus("camera")
+
+    async def go() -> dict[str, dict[str, int]]:
+        from schemas import ServiceStats
+        task = asyncio.create_task(run_deployment(dep, duration=15))
+        await wait_alive_async(bus.session, "ir_transmitter", "vertex_extractor")
+        await wait_matched(bus, FRAME)
+        bus.put_frame(*encode_frame(np.zeros((480, 640, 3), np.uint8), 1, time.time_ns()))
+        bus.session.put(bus.keys.key(IR_COMMAND), json.dumps(
+            {"command": "stop", "pad": "x" * 3000}), encoding=IrCommand.zenoh_encoding())
+        await asyncio.sleep(0.5)
+        rejected: dict[str, dict[str, int]] = {}
+        for name in ("vertex_extractor", "ir_transmitter"):
+            stats = await bus.get(f"stats/{name}", ServiceStats, timeout=2)
+            rejected.update(stats[0].rejected)
+        task.cancel()
+        return rejected
+    rejected = asyncio.run(go())
+    assert any("larger than the 320x320 limit" in r for r in rejected["shepherd/camera/frame"])
+    assert any("exceeds the 2048-byte limit" in r for r in rejected["shepherd/ir/command"])

@@ -97,7 +97,8 @@ def test_only_the_mission_controller_identity_drives_the_robot(secure_router, ce
             laptop.close()
             return got
     got = asyncio.run(go())
-    assert got == ["turn_left"]
+    assert got[0] == "turn_left" and "walk_forward" not in got
+    assert set(got[1:]) <= {"stop"}  # the dead-man stops it once the laptop goes quiet
 
 
 def test_the_vision_identity_cannot_command_the_humanoid(secure_router, certs: Path):
@@ -115,3 +116,64 @@ def test_the_vision_identity_cannot_command_the_humanoid(secure_router, certs: P
         sub.undeclare()
         sub2.undeclare()
     assert got == [] and frames == [b"x"]
+
+
+def test_a_viewer_cannot_answer_queries_a_service_serves(secure_router, certs: Path):
+    """The pose estimator takes the first reply on camera/intrinsics: only the vision host's
+    may reach it."""
+    with open_session(_client(secure_router, certs / "viewer.json5")) as viewer, \
+            open_session(_client(secure_router, certs / "robot.json5")) as robot, \
+            open_session(_client(secure_router, certs / "laptop.json5")) as laptop:
+        fake = viewer.declare_queryable("shepherd/camera/intrinsics",
+                                        lambda q: q.reply(q.key_expr, b"fake"))
+        real = robot.declare_queryable("shepherd/camera/intrinsics",
+                                       lambda q: q.reply(q.key_expr, b"real"))
+        time.sleep(0.5)
+        answers = [r.ok.payload.to_bytes() for r in
+                   laptop.get("shepherd/camera/intrinsics", timeout=1.0) if r.ok is not None]
+        fake.undeclare()
+        real.undeclare()
+    assert answers == [b"real"]
+
+
+def test_a_service_token_counts_only_from_its_hosts_role(secure_router, certs: Path):
+    with open_session(_client(secure_router, certs / "viewer.json5")) as viewer, \
+            open_session(_client(secure_router, certs / "robot.json5")) as robot, \
+            open_session(_client(secure_router, certs / "laptop.json5")) as laptop:
+        tokens = [viewer.liveliness().declare_token("shepherd/alive/mission_controller"),
+                  robot.liveliness().declare_token("shepherd/alive/mission_controller"),
+                  robot.liveliness().declare_token("shepherd/alive/pose_estimator"),
+                  laptop.liveliness().declare_token("shepherd/alive/camera_planner")]
+        time.sleep(0.5)
+        with open_session(_client(secure_router, certs / "viewer.json5")) as watcher:
+            alive = sorted(str(r.ok.key_expr) for r in watcher.liveliness().get(
+                "shepherd/alive/**", timeout=1.0) if r.ok is not None)
+        for t in tokens:
+            t.undeclare()
+    # the mission controller's token from the viewer or the vision host is not believed
+    assert alive == ["shepherd/alive/camera_planner", "shepherd/alive/pose_estimator"]
+
+
+def test_the_router_listens_with_tls_when_its_config_says_so(certs: Path, tmp_path: Path):
+    from tests.conftest import spawn_cli
+    port = free_port()
+    config = tmp_path / "router.json5"
+    config.write_text((certs / "router.json5").read_text().replace(
+        '"tls/0.0.0.0:7447"', f'"tls/127.0.0.1:{port}"'))
+    router = spawn_cli("router", "--config", str(config))
+    try:
+        line = router.stdout.readline() if router.stdout else ""
+        assert f"tls/127.0.0.1:{port}" in line, line
+        for _ in range(50):  # TLS with the laptop's certificate connects
+            try:
+                with open_session(_client(f"tls/localhost:{port}", certs / "laptop.json5")):
+                    break
+            except zenoh.ZError:
+                time.sleep(0.1)
+        else:
+            pytest.fail("no TLS client could connect")
+        with pytest.raises(zenoh.ZError):  # plain TCP on that port does not
+            zenoh.open(zenoh_config(_client(f"tcp/127.0.0.1:{port}", None)))
+    finally:
+        router.kill()
+        router.communicate()

@@ -4,7 +4,9 @@
  * Host protocol (services/ir_transmitter, serial backend): 115200 baud 8N1; the host sends
  * one raw byte per command, the Robosapien code itself (0x80-0xFF; e.g. 0x86 walk forward,
  * 0x8E stop). Each valid code is sent as one IR frame and echoed back when done; 0x00 is a
- * heartbeat; anything else below 0x80 is answered with '?' and ignored.
+ * heartbeat; anything else below 0x80 is answered with '?' and ignored. When it is ready
+ * (after a reset: an Arduino resets when the port opens), it announces itself with the line
+ * "RSIR1\n"; the host sends nothing before it has read that.
  *
  * IR frame (as light; implementation notes, section 1): T = 1/1200 s ~ 833 us; a start mark
  * of 8T; then 8 bits, most significant first, each a space (T for 0, 4T for 1) followed by a
@@ -36,6 +38,7 @@ const struct avr_mmcu_vcd_trace_t _mytrace[] _MMCU_ = {
 #define RX_SIZE 16
 #define CODE_STOP 0x8E
 #define CODE_HEARTBEAT 0x00
+#define HELLO "RSIR1\n" /* services/ir_transmitter/protocol.py FIRMWARE_HELLO */
 #ifndef WATCHDOG_MS
 #define WATCHDOG_MS 400u
 #endif
@@ -133,6 +136,9 @@ int main(void) {
     carrier_init();
     clock_init();
     sei();
+    for (const char *p = HELLO; *p; ++p) {
+        uart_write((uint8_t)*p); /* ready: the host may send now */
+    }
     uint8_t moving = 0;
     uint16_t last_rx = now_ms();
     for (;;) {

@@ -46,6 +46,7 @@ for who in router robot laptop viewer; do
     cat > router.json5 <<JSON
 {
   mode: "router",
+  listen: { endpoints: ["tls/0.0.0.0:7447"] },
   transport: {
     link: { tls: { root_ca_certificate: "$dir/ca.pem", listen_private_key: "$dir/router.key",
                    listen_certificate: "$dir/router.pem", enable_mtls: true } },

@@ -18,6 +18,7 @@ from collections.abc import Callable
 from typing import Any, Protocol
 
 from schemas import ROBOSAPIEN_CODES, Command, IrCommand
+from services.ir_transmitter.protocol import FIRMWARE_HELLO, REFUSED, WATCHDOG_STOP
 
 log = logging.getLogger("shepherd.ir_transmitter")
 
@@ -29,7 +30,9 @@ class BackendError(Exception):
 class IrBackend(Protocol):
     name: str
     options: dict[str, Any]
-    connected: bool
+
+    @property
+    def connected(self) -> bool: ...
 
     def send(self, command: IrCommand) -> None: ...
     def close(self) -> None: ...
@@ -75,60 +78,130 @@ class SimBackend:
 
 
 class SerialBackend:
-    """One byte per command over a serial port (pyserial); reopens after an unplug."""
+    """One byte per command over a serial port (pyserial) to the IR firmware; reopens after an
+    unplug.
+
+    Opening an Arduino's port resets it (DTR), so nothing is sent until the firmware has said
+    ``FIRMWARE_HELLO``; ``connected`` is true only from then on. The firmware acknowledges
+    every code it sent as IR (and answers '?' to a refused byte, '!' when its own watchdog
+    stopped the robot): codes without an acknowledgement within ``ack_timeout_s`` are counted
+    in ``unacked``. ``handshake = false`` drives a device without the firmware (no hello, no
+    acknowledgements expected).
+    """
 
     name = "serial"
 
     def __init__(self, port: str, baud: int | str = 115200, reopen_s: float | str = 0.5,
-                 **rest: Any) -> None:
+                 handshake: bool | str = True, ready_timeout_s: float | str = 3.0,
+                 ack_timeout_s: float | str = 0.5, **rest: Any) -> None:
         if rest:
-            raise ValueError(f"serial backend: unknown options {sorted(rest)} "
-                             "(expected port, baud, reopen_s)")
+            raise ValueError(f"serial backend: unknown options {sorted(rest)} (expected port, "
+                             "baud, reopen_s, handshake, ready_timeout_s, ack_timeout_s)")
         if not port:
             raise ValueError("serial backend needs a port, e.g. /dev/ttyUSB0")
         self.port, self.baud, self.reopen_s = str(port), int(baud), float(reopen_s)
-        self.options = {"port": self.port, "baud": self.baud}
+        self.handshake = handshake not in (False, "false", "0", 0)
+        self.ready_timeout_s, self.ack_timeout_s = float(ready_timeout_s), float(ack_timeout_s)
+        self.options: dict[str, Any] = {"port": self.port, "baud": self.baud}
         self._ser: Any = None
-        self._last_try = 0.0
-        self.connected = False
+        self._opened_at = self._last_try = 0.0
+        self._ready = False
+        self._heard = b""              # bytes read while waiting for the hello
+        self._awaiting: list[tuple[int, float]] = []  # (code, sent at) not yet acknowledged
+        self.unacked = self.refused = self.watchdog_stops = 0
         self._open(initial=True)
+
+    @property
+    def connected(self) -> bool:
+        """The port is open and the firmware said it is ready."""
+        return self._ser is not None and self._ready
 
     def _open(self, initial: bool = False) -> bool:
         import serial
         self._last_try = time.monotonic()
         try:
-            self._ser = serial.Serial(self.port, self.baud, timeout=0.2, write_timeout=0.5)
+            self._ser = serial.Serial(self.port, self.baud, timeout=0, write_timeout=0.5)
         except (serial.SerialException, OSError) as err:
-            self._ser, self.connected = None, False
+            self._ser = None
             if initial:
                 log.warning("serial port %s not available yet: %s", self.port, err)
             return False
-        self.connected = True
-        log.info("serial port %s open at %d baud", self.port, self.baud)
+        self._opened_at, self._ready, self._heard = time.monotonic(), not self.handshake, b""
+        self._awaiting.clear()
+        log.info("serial port %s open at %d baud%s", self.port, self.baud,
+                 "; waiting for the firmware" if self.handshake else "")
         return True
 
-    def send(self, command: IrCommand) -> None:
+    def _read_replies(self) -> None:
+        """Take what the firmware said: the hello, acknowledgements, refusals, watchdog."""
+        data = self._ser.read(self._ser.in_waiting or 0) if self._ser is not None else b""
+        if not self._ready:
+            self._heard = (self._heard + data)[-64:]
+            if FIRMWARE_HELLO not in self._heard:
+                return
+            self._ready = True
+            log.info("IR firmware ready on %s", self.port)
+            data = self._heard.split(FIRMWARE_HELLO, 1)[1]
+        if not self.handshake:
+            return
+        for byte in data:
+            if byte == WATCHDOG_STOP:
+                self.watchdog_stops += 1
+                log.warning("the IR firmware's watchdog stopped the robot (host too quiet)")
+            elif byte == REFUSED:
+                self.refused += 1
+                if self._awaiting:
+                    self._awaiting.pop(0)
+            elif any(code == byte for code, _ in self._awaiting):
+                while self._awaiting and self._awaiting.pop(0)[0] != byte:
+                    self.unacked += 1  # an earlier code never came back
+        now = time.monotonic()
+        while self._awaiting and now - self._awaiting[0][1] > self.ack_timeout_s:
+            self._awaiting.pop(0)
+            self.unacked += 1
+
+    def _wait_ready(self) -> None:
+        """Block (in a worker thread) until the firmware said hello; raise if it does not."""
+        while not self._ready:
+            self._read_replies()
+            if self._ready:
+                return
+            if time.monotonic() - self._opened_at > self.ready_timeout_s:
+                raise BackendError(
+                    f"no hello from the IR firmware on {self.port} within "
+                    f"{self.ready_timeout_s:.1f} s (is deploy/firmware flashed? "
+                    "handshake = false for a device without it)")
+            time.sleep(0.01)
+
+    def _io(self, write: bytes, ack: int | None) -> None:
         import serial
         if self._ser is None:
             if time.monotonic() - self._last_try < self.reopen_s or not self._open():
                 raise BackendError(f"serial port {self.port} is disconnected")
         try:
-            self._ser.write(bytes([ROBOSAPIEN_CODES[command.command]]))
+            self._wait_ready()
+            self._ser.write(write)
             self._ser.flush()
+            if ack is not None and self.handshake:
+                self._awaiting.append((ack, time.monotonic()))
+            self._read_replies()
         except (serial.SerialException, OSError) as err:
             self.close()
             raise BackendError(f"serial port {self.port} failed: {err}") from None
 
+    def send(self, command: IrCommand) -> None:
+        code = ROBOSAPIEN_CODES[command.command]
+        self._io(bytes([code]), ack=code)
+
     def heartbeat(self) -> None:
-        """Send the heartbeat byte 0x00 (the firmware's watchdog stops the robot without it)."""
+        """Send the heartbeat byte 0x00 (the firmware's watchdog stops the robot without it)
+        and take the firmware's replies."""
         if self._ser is None:
             raise BackendError(f"serial port {self.port} is disconnected")
-        import serial
-        try:
-            self._ser.write(b"\x00")
-        except (serial.SerialException, OSError) as err:
-            self.close()
-            raise BackendError(f"serial port {self.port} failed: {err}") from None
+        if not self._ready:  # still resetting: nothing to feed yet
+            self._read_replies()
+            return
+        self._io(b"\x00", ack=None)
 
     def reconnect(self) -> bool:
         """Try to reopen now (rate-limited); True if the port is open."""
@@ -142,7 +215,7 @@ class SerialBackend:
                 self._ser.close()
             except Exception:
                 pass
-        self._ser, self.connected = None, False
+        self._ser, self._ready = None, False
 
 
 #: LIRC button names in deploy/lirc/robosapien.lircd.conf.

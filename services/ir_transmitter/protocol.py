@@ -11,6 +11,12 @@ from schemas import ROBOSAPIEN_CODES
 T_US = 833
 CARRIER_HZ = 39200
 
+#: What the firmware (deploy/firmware) says when it is ready, after every reset.
+FIRMWARE_HELLO = b"RSIR1\n"
+#: The firmware's replies: each code it sent as IR, '?' for a byte it refused, '!' for the
+#: stop its own watchdog sent.
+REFUSED, WATCHDOG_STOP = ord("?"), ord("!")
+
 
 def timings_us(code: int) -> list[int]:
     """Alternating mark/space durations (us), starting and ending with a mark."""

@@ -66,6 +66,8 @@ class Transmitter:
         return IrBackendStatus(backend=self.backend.name, options=self.backend.options,
                                sent=self.sent, failed=self.failed, coalesced=self.coalesced,
                                deadman_stops=self.deadman_stops,
+                               unacked=getattr(self.backend, "unacked", 0),
+                               firmware_watchdog_stops=getattr(self.backend, "watchdog_stops", 0),
                                connected=self.backend.connected, last_error=self.last_error)
 
     async def send(self, cmd: IrCommand) -> bool:

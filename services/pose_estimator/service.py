@@ -7,9 +7,16 @@ import math
 import time
 
 import numpy as np
-from pydantic import Field
+from pydantic import Field, ValidationError
 
-from schemas import CameraIntrinsics, CameraPose, HumanoidPose, MarkerInCamera, MarkerVertices
+from schemas import (
+    CameraIntrinsics,
+    CameraPose,
+    HumanoidPose,
+    MarkerInCamera,
+    MarkerVertices,
+    describe_validation_error,
+)
 from schemas.keys import HUMANOID_POSE, INTRINSICS, ODOM, VERTICES
 from services.core.camera import CameraModel
 from services.core.geometry import T_floor, inv_T, quaternion_from_R
@@ -57,7 +64,13 @@ class PoseEstimator:
         self._previous: tuple[int, np.ndarray] | None = None  # (stamp_ns, R) of the last pose
 
     def estimate(self, msg: MarkerVertices) -> HumanoidPose:
-        """Raises PoseError when the vertices give no pose."""
+        """Raises PoseError when the vertices give no pose (or one no message can carry)."""
+        try:
+            return self._estimate(msg)
+        except ValidationError as err:  # e.g. a world pose beyond the 10 km the schema allows
+            raise PoseError(f"pose out of range: {describe_validation_error(err)}") from None
+
+    def _estimate(self, msg: MarkerVertices) -> HumanoidPose:
         if not msg.found or msg.vertices_px is None:
             raise PoseError(f"marker not found: {msg.reason}")
         if msg.width and (msg.width, msg.height) != (self.camera.width, self.camera.height):

@@ -7,7 +7,7 @@ when it closes. Subscriptions deliver into bounded mailboxes (``services.runtime
 
 Every received payload is validated; an invalid one is counted per (key, reason), logged once
 per key, and dropped. The service never sees it and keeps running. JSON payloads larger than
-``MAX_JSON_BYTES`` are refused before parsing; frames are checked before decoding
+``limits.max_json_bytes`` are refused before parsing; frames are checked before decoding
 (``services.runtime.frames``) and JPEGs decoded on the frame thread, off the event loop.
 
 Buses sharing a session deliver to each other in-process (``services.runtime.local_delivery``):
@@ -40,11 +40,10 @@ from services.runtime.frames import (
 )
 from services.runtime.local_delivery import LocalHub, hub_for
 from services.runtime.mailbox import Rejections, Subscription
+from services.runtime.session import Limits
 
 M = TypeVar("M", bound=Message)
 
-#: Largest JSON message a service parses (bytes); larger payloads are refused unread.
-MAX_JSON_BYTES = 64 * 1024
 
 
 class _FrameSubscription(Subscription[Any]):
@@ -78,6 +77,7 @@ class Bus:
         service: the service name, used for logs and the ``alive/<service>`` token.
         rejections: where rejected payloads are counted (the launcher keeps one per service
             across restarts); a fresh count by default.
+        limits: sizes beyond which payloads are refused before parsing or decoding.
         local_delivery: this bus's subscriptions take messages published by buses of the
             same session straight from them (``services.runtime.local_delivery``); False
             takes everything from Zenoh. Publishing always serves both kinds of subscriber.
@@ -85,13 +85,14 @@ class Bus:
 
     def __init__(self, session: zenoh.Session, keys: Keys | None = None,
                  service: str = "client", rejections: Rejections | None = None,
-                 local_delivery: bool = True) -> None:
+                 local_delivery: bool = True, limits: Limits | None = None) -> None:
         self.session = session
         self.keys = keys or Keys()
         self.service = service
         self.log = logging.getLogger(f"shepherd.{service}")
         self.rejections = rejections or Rejections(self.log)
         self.local_delivery = local_delivery
+        self.limits = limits or Limits()
         self._closers: list[Callable[[], None]] = []
         self._publishers: dict[str, Any] = {}
         self._hub: LocalHub = hub_for(session)
@@ -184,9 +185,9 @@ class Bus:
         if ";shepherd." in schema and schema != model.zenoh_encoding():
             self.rejections.add(key, f"encoding {schema!r}, expected {model.zenoh_encoding()!r}")
             return None
-        if len(sample.payload) > MAX_JSON_BYTES:
+        if len(sample.payload) > self.limits.max_json_bytes:
             self.rejections.add(key, f"{model.__name__} payload of {len(sample.payload)} bytes "
-                                f"exceeds the {MAX_JSON_BYTES}-byte limit")
+                                f"exceeds the {self.limits.max_json_bytes}-byte limit")
             return None
         try:
             return model.model_validate_json(sample.payload.to_bytes())
@@ -230,7 +231,8 @@ class Bus:
         decoding it; count and return None when invalid."""
         attachment = sample.attachment.to_bytes() if sample.attachment is not None else None
         try:
-            return check_frame(attachment, len(sample.payload), sample.payload.to_bytes)
+            return check_frame(attachment, len(sample.payload), sample.payload.to_bytes,
+                               self.limits.max_frame_side)
         except FrameError as err:
             self.rejections.add(str(sample.key_expr), str(err))
             return None

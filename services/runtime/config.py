@@ -23,7 +23,7 @@ from pydantic.functional_validators import AfterValidator
 from schemas import describe_validation_error
 from services.core.mounts import Geometry
 from services.core.world import World
-from services.runtime.session import ZenohSettings
+from services.runtime.session import Limits, ZenohSettings
 
 P = TypeVar("P", bound=BaseModel)
 
@@ -59,6 +59,7 @@ class Deployment(BaseModel):
     model_config = ConfigDict(extra="forbid")
     namespace: str = Field(default="shepherd", pattern=r"^[A-Za-z0-9_\-]+(/[A-Za-z0-9_\-]+)*$")
     zenoh: ZenohSettings = Field(default_factory=ZenohSettings)
+    limits: Limits = Field(default_factory=Limits)
     geometry: Geometry = Field(default_factory=Geometry)
     world: World = Field(default_factory=World)
     services: dict[str, dict[str, Any]] = Field(default_factory=dict)

@@ -2,8 +2,8 @@
 
 Everything about a frame is checked before anything the size of its image is allocated: the
 header, the raw payload's length against it, and a JPEG's dimensions as its SOF marker gives
-them (against the header and against ``MAX_FRAME_SIDE``), so a hostile header or image cannot
-make a service allocate gigabytes.
+them (against the header and against the largest side allowed, ``[limits] max_frame_side``),
+so a hostile header or image cannot make a service allocate gigabytes.
 """
 
 from __future__ import annotations
@@ -19,8 +19,6 @@ from schemas import FrameEncoding, FrameHeader, describe_validation_error
 
 FRAME_ENCODING = "application/octet-stream;shepherd.Frame/1"
 JPEG_ENCODING = "image/jpeg;shepherd.Frame/1"
-#: Largest width or height of a frame a service decodes (pixels).
-MAX_FRAME_SIDE = 4096
 
 
 class FrameError(ValueError):
@@ -70,9 +68,10 @@ def jpeg_dimensions(data: bytes) -> tuple[int, int]:
 
 
 def check_frame(attachment: bytes | None, size: int, payload: Callable[[], bytes],
-                max_side: int = MAX_FRAME_SIDE) -> FrameHeader:
-    """Validate a frame sample before decoding it: its header, size, and for JPEG the SOF
-    dimensions. ``payload`` gives the bytes (asked for only for JPEG). Raises FrameError."""
+                max_side: int) -> FrameHeader:
+    """Validate a frame sample before decoding it: its header, its size, no side over
+    ``max_side`` px, and for JPEG the SOF dimensions. ``payload`` gives the bytes (asked for
+    only for JPEG). Raises FrameError."""
     if attachment is None:
         raise FrameError("frame without a header attachment")
     try:

@@ -54,7 +54,8 @@ async def _supervise_task(name: str, dep: Deployment, session: zenoh.Session,
     rejections = Rejections(logging.getLogger(f"shepherd.{name}"))
     attempt = 0
     while not run.stop.is_set():
-        bus = Bus(session, keys, name, rejections, local_delivery=dep.zenoh.local_delivery)
+        bus = Bus(session, keys, name, rejections, local_delivery=dep.zenoh.local_delivery,
+                  limits=dep.limits)
         main: asyncio.Future[None] | None = None
         try:
             bus.declare_queryable(f"{STATS}/{name}", lambda: ServiceStats(

@@ -29,6 +29,17 @@ class ZenohSettings(BaseModel):
         "to Zenoh for everyone else)"))
 
 
+class Limits(BaseModel):
+    """The ``[limits]`` table: what a service accepts from the bus before anything is
+    allocated for it."""
+
+    model_config = ConfigDict(extra="forbid", frozen=True)
+    max_json_bytes: int = Field(default=64 * 1024, ge=1024, le=16 * 1024 * 1024,
+                                description="larger JSON messages are refused unparsed")
+    max_frame_side: int = Field(default=4096, ge=16, le=16384,
+                                description="frames wider or taller (px) are refused")
+
+
 def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
     """Build a ``zenoh.Config``: the native config file first, then our table on top."""
     if settings.config_file is not None:

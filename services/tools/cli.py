@@ -79,12 +79,21 @@ def cmd_echo(args: argparse.Namespace) -> int:
 
 
 def cmd_router(args: argparse.Namespace) -> int:
-    from services.runtime.session import open_session
-    listen = args.listen or ["tcp/0.0.0.0:7447"]
+    import zenoh
+
+    from services.runtime.session import zenoh_config
+    # a native config's own listen endpoints (e.g. TLS) hold unless --listen replaces them
+    listen = args.listen or ([] if args.config else ["tcp/0.0.0.0:7447"])
     settings = ZenohSettings(mode="router", listen=listen, multicast_scouting=False,
                              config_file=Path(args.config) if args.config else None)
-    with open_session(settings):
-        print(f"shepherd router listening on {', '.join(listen)}", flush=True)
+    try:
+        session = zenoh.open(zenoh_config(settings))
+    except (zenoh.ZError, FileNotFoundError) as err:
+        print(f"shepherd: cannot start the router: {err}", file=sys.stderr)
+        return 2
+    try:
+        shown = listen or _config_endpoints(Path(args.config))
+        print(f"shepherd router listening on {', '.join(shown)}", flush=True)
         try:
             if args.duration:
                 time.sleep(args.duration)
@@ -93,7 +102,19 @@ def cmd_router(args: argparse.Namespace) -> int:
                     time.sleep(3600)
         except KeyboardInterrupt:
             pass
+    finally:
+        session.close()
     return 0
+
+
+def _config_endpoints(path: Path) -> list[str]:
+    """The listen endpoints a native Zenoh config names (for the start-up line)."""
+    import zenoh
+    try:
+        text = zenoh.Config.from_file(str(path)).get_json("listen/endpoints")
+    except Exception:
+        return [f"the endpoints of {path}"]
+    return list(json.loads(text)) if text and text != "null" else [f"Zenoh's default ({path})"]
 
 
 def cmd_schemas(args: argparse.Namespace) -> int:

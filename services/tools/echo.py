@@ -7,7 +7,7 @@ import time
 
 from schemas import Keys, Message
 from schemas.keys import model_or_none
-from services.runtime.bus import MAX_JSON_BYTES, Bus
+from services.runtime.bus import Bus
 from services.runtime.session import ZenohSettings, open_session
 from services.tools.pretty import describe, printable
 
@@ -41,9 +41,9 @@ async def echo(settings: ZenohSettings, namespace: str, key_expr: str, *,
                     line = ("invalid frame (see warning)" if h is None else
                             f"seq={h.seq} {h.width}x{h.height} {h.encoding.value} "
                             f"{len(sample.payload) / 1e3:.1f} kB {rate:.1f} fps")
-                elif len(sample.payload) > MAX_JSON_BYTES:
-                    line = (f"{len(sample.payload)} bytes, over the {MAX_JSON_BYTES}-byte "
-                            "limit: not shown")
+                elif len(sample.payload) > bus.limits.max_json_bytes:
+                    line = (f"{len(sample.payload)} bytes, over the "
+                            f"{bus.limits.max_json_bytes}-byte limit: not shown")
                 elif model is not None and not raw:
                     msg = bus.decode(sample, model)
                     line = "invalid (see warning)" if msg is None else describe(msg)
