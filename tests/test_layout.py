@@ -15,7 +15,8 @@ from services.mission_controller.service import Settings as ControllerSettings
 ROOT = Path(__file__).resolve().parent.parent
 PACKAGES = ("schemas", "services")
 SERVICES = ("calibration", "camera_planner", "frame_source", "ir_transmitter",
-            "mission_controller", "monitor", "pose_estimator", "sim", "vertex_extractor", "viz")
+            "mission_controller", "monitor", "pose_estimator", "ros2_bridge", "sim",
+            "vertex_extractor", "viz")
 
 
 def _module(path: Path) -> str:

@@ -18,7 +18,7 @@ from services.core.world import CircleObstacle, World
 from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
 from services.viz.convert import floor_scene, image, image_annotations
-from tests.conftest import free_port
+from tests.conftest import free_port, wait_alive_async
 from tests.helpers.fake_frames import publish_frame, render_marker
 
 pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
@@ -50,8 +50,9 @@ def test_conversions():
     assert b"humanoid (truth)" not in scene
 
 
-def _ws_messages(port: int, want: set[str], timeout: float = 10.0) -> set[str]:
-    """Connect as a Foxglove client (raw WebSocket) and collect advertised topics."""
+def _ws_messages(port: int, want: set[str], timeout: float = 10.0) -> dict[str, str]:
+    """Connect as a Foxglove client (raw WebSocket) and collect advertised topics with their
+    schema names."""
     s = socket.create_connection(("127.0.0.1", port), timeout=timeout)
     key = base64.b64encode(os.urandom(16)).decode()
     s.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
@@ -64,9 +65,9 @@ def _ws_messages(port: int, want: set[str], timeout: float = 10.0) -> set[str]:
         buf += s.recv(4096)
     head, buf = buf.split(b"\r\n\r\n", 1)
     assert b" 101 " in head.split(b"\r\n")[0], head
-    topics: set[str] = set()
+    topics: dict[str, str] = {}
     end = time.monotonic() + timeout
-    while not want <= topics and time.monotonic() < end:
+    while not want <= set(topics) and time.monotonic() < end:
         while len(buf) < 2:
             buf += s.recv(65536)
         opcode, n = buf[0] & 0x0F, buf[1] & 0x7F
@@ -85,7 +86,7 @@ def _ws_messages(port: int, want: set[str], timeout: float = 10.0) -> set[str]:
         if opcode == 1:
             msg = json.loads(payload)
             if msg.get("op") == "advertise":
-                topics |= {c["topic"] for c in msg["channels"]}
+                topics |= {c["topic"]: c.get("schemaName", "") for c in msg["channels"]}
     s.close()
     return topics
 
@@ -97,17 +98,20 @@ def test_live_view_serves_the_camera_and_the_floor_plan(router, make_bus):
     bus = make_bus("feeder")
     frame = render_marker(0.3).image
 
-    async def go() -> set[str]:
+    async def go() -> dict[str, str]:
         task = asyncio.create_task(run_deployment(dep, duration=20))
-        await asyncio.sleep(1.5)
+        await wait_alive_async(bus.session, "viz")
         for k in range(10):
             publish_frame(bus, frame, k)
             bus.put(VERTICES, VERTS)
             bus.put(HUMANOID_POSE, POSE)
             await asyncio.sleep(0.1)
         topics = await asyncio.to_thread(
-            _ws_messages, port, {"/camera/image", "/camera/annotations", "/floor"})
+            _ws_messages, port, {"/camera/image", "/camera/annotations", "/floor",
+                                 "/humanoid/pose"})
         task.cancel()
         return topics
     topics = asyncio.run(go())
-    assert {"/camera/image", "/camera/annotations", "/floor", "/humanoid/pose"} <= topics
+    assert {"/camera/image", "/camera/annotations", "/floor", "/humanoid/pose"} <= set(topics)
+    assert topics["/humanoid/pose"] == "shepherd.HumanoidPose"  # not a generated name
+    assert topics["/camera/image"] == "foxglove.CompressedImage"

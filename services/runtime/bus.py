@@ -113,6 +113,17 @@ class Bus:
     async def __aexit__(self, *exc: object) -> None:
         self.close()
 
+    def declare_token(self, key_expr: str) -> None:
+        """Declare a liveliness token on any key until this bus closes."""
+        token = self.session.liveliness().declare_token(key_expr)
+        self._closers.append(token.undeclare)
+
+    def raw_publisher(self, key_expr: str) -> Any:
+        """A Zenoh publisher on any key (for foreign wire formats), undeclared with the bus."""
+        pub = self.session.declare_publisher(key_expr)
+        self._closers.append(pub.undeclare)
+        return pub
+
     def declare_alive(self) -> None:
         """Declare the liveliness token ``alive/<service>`` until this bus closes."""
         token = self.session.liveliness().declare_token(self.keys.alive(self.service))

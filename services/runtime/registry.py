@@ -20,6 +20,7 @@ SERVICES: dict[str, str] = {
     "calibration": "services.calibration.service",
     "monitor": "services.monitor.service",
     "viz": "services.viz.service",
+    "ros2_bridge": "services.ros2_bridge.service",
 }
 
 

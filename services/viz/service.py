@@ -4,6 +4,7 @@ the poses on a floor plan. Needs the ``viz`` extra (``pip install '.[viz]'``).""
 
 from __future__ import annotations
 
+import json
 import time
 
 from pydantic import Field
@@ -60,6 +61,11 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
     mc = ctx.deployment.settings.get("mission_controller")
     waypoints = list(mc.waypoints) if mc is not None else []
     pose = truth = odom = goal = None
+    # JSON channels under their message names, with the messages' own JSON Schemas
+    pose_channel, state_channel = (foxglove.Channel(topic, message_encoding="json", schema=(
+        foxglove.Schema(name=f"shepherd.{model.__name__}", encoding="jsonschema",
+                        data=json.dumps(model.model_json_schema()).encode())))
+        for topic, model in (("/humanoid/pose", HumanoidPose), ("/mission/state", MissionState)))
     ticker = Ticker(1.0 / config.fps)
     try:
         while True:
@@ -76,9 +82,9 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
             if (v := verts.get_nowait()) is not None:
                 foxglove.log("/camera/annotations", image_annotations(v))
             if (s := state_sub.get_nowait()) is not None:
-                foxglove.log("/mission/state", s.model_dump(mode="json"))
+                state_channel.log(s.model_dump(mode="json"))
             if pose is not None:
-                foxglove.log("/humanoid/pose", pose.model_dump(mode="json"))
+                pose_channel.log(pose.model_dump(mode="json"))
             foxglove.log("/floor", floor_scene(now, pose, truth, odom, goal, waypoints,
                                                ctx.deployment.world))
             await ticker.wait()

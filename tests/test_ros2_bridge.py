@@ -1,0 +1,235 @@
+"""The ROS 2 bridge against rmw_zenoh's documented wire format, with rosbags (an independent
+CDR implementation and hash computer) on the other side."""
+
+from __future__ import annotations
+
+import asyncio
+import math
+import struct
+import time
+
+import cv2
+import numpy as np
+import pytest
+
+from schemas import CameraGoal, CameraPose, HumanoidPose, MarkerInCamera, MissionGoal
+from schemas.keys import CAMERA_GOAL, HUMANOID_POSE, MISSION_GOAL, ODOM
+from services.ros2_bridge import convert, rmw
+from services.runtime.config import parse_deployment
+from services.runtime.launcher import run_deployment
+from tests.conftest import wait_alive_async
+
+CHATTER_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
+
+
+def test_data_keys_match_rmw_zenohs_design_document():
+    assert rmw.data_key(0, "/chatter", "std_msgs/msg/String") == (
+        f"0/chatter/std_msgs::msg::dds_::String_/{CHATTER_HASH}")
+    assert rmw.data_key(0, "/chatter", "std_msgs/msg/String", with_hash=False) == (
+        "0/chatter/std_msgs::msg::dds_::String_/TypeHashNotSupported")  # Humble
+    assert rmw.data_key(3, "/shepherd/humanoid/pose", convert.POSE_COV).startswith(
+        "3/shepherd/humanoid/pose/geometry_msgs::msg::dds_::PoseWithCovarianceStamped_/RIHS01_")
+    with pytest.raises(ValueError, match="must be absolute"):
+        rmw.data_key(0, "chatter", "std_msgs/msg/String")
+
+
+@pytest.mark.parametrize("ros_type", [convert.POSE_COV, convert.POSE, convert.TF,
+                                      convert.ODOMETRY, convert.IMAGE, convert.CAMERA_INFO])
+def test_type_hashes_are_rosbags_rihs01(ros_type: str):
+    from rosbags.typesys import Stores, get_typestore
+    expected = get_typestore(Stores.ROS2_JAZZY).hash_rihs01(ros_type)
+    assert rmw.data_key(0, "/t", ros_type).endswith("/" + expected)
+    assert len(expected) == len("RIHS01_") + 64
+
+
+def test_liveliness_tokens_match_rmw_zenohs_design_document():
+    assert rmw.node_token(0, "aac3178e146ba6f1fc6e6a4085e77f21", 0, "listener") == (
+        "@ros2_lv/0/aac3178e146ba6f1fc6e6a4085e77f21/0/0/NN/%/%/listener")
+    assert rmw.entity_token(
+        0, "8b20917502ee955ac4476e0266340d5c", 0, 10, "MP", "talker", "/chatter",
+        "std_msgs/msg/String", rmw.Qos(depth=7)) == (
+        "@ros2_lv/0/8b20917502ee955ac4476e0266340d5c/0/10/MP/%/%/talker/%chatter/"
+        f"std_msgs::msg::dds_::String_/{CHATTER_HASH}/::,7:,:,:,,")
+    assert rmw.entity_token(
+        2, "aac3178e146ba6f1fc6e6a4085e77f21", 0, 10, "MS", "listener", "/chatter",
+        "std_msgs/msg/String", rmw.Qos(depth=10)) == (
+        "@ros2_lv/2/aac3178e146ba6f1fc6e6a4085e77f21/0/10/MS/%/%/listener/%chatter/"
+        f"std_msgs::msg::dds_::String_/{CHATTER_HASH}/::,10:,:,:,,")
+    # names with slashes, a namespace, non-default QoS
+    token = rmw.entity_token(0, "ab", 2, 12, "MP", "imu_node", "/veh/imu/data",
+                             "std_msgs/msg/String", rmw.Qos("best_effort", depth=5),
+                             namespace="/veh")
+    assert "/NN/" not in token and "/MP/%/%veh/imu_node/%veh%imu%data/" in token
+    assert token.endswith("/2::,5:,:,:,,")
+    assert rmw.Qos(durability="transient_local", depth=1).key() == ":1:,1:,:,:,,"
+
+
+def test_the_attachment_is_rmw_zenohs_33_bytes():
+    gid = bytes(range(16))
+    data = rmw.pack_attachment(7, 1_700_000_000_123_456_789, gid)
+    assert len(data) == 33 and data[16] == 0x10 and data[17:] == gid
+    assert struct.unpack("<qq", data[:16]) == (7, 1_700_000_000_123_456_789)
+    assert rmw.unpack_attachment(data) == (7, 1_700_000_000_123_456_789, gid)
+    with pytest.raises(ValueError, match="33 bytes"):
+        rmw.unpack_attachment(data[:-1])
+    with pytest.raises(ValueError, match="16 bytes"):
+        rmw.pack_attachment(1, 1, b"short")
+
+
+def _pose(x: float, y: float, yaw: float, stamp: int) -> HumanoidPose:
+    cov = ((1e-4, 2e-5, 3e-6), (2e-5, 4e-4, 5e-6), (3e-6, 5e-6, 6e-3))
+    return HumanoidPose(seq=3, stamp_ns=stamp, x=x, y=y, yaw=yaw, covariance=cov,
+                        marker_in_camera=MarkerInCamera(position=(0, 0, 0.3),
+                                                        quaternion=(0, 0, 0, 1)),
+                        reprojection_px=0.1)
+
+
+def test_what_the_bridge_publishes_decodes_in_rosbags_to_the_same_values(router, make_bus,
+                                                                         sessions):
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"ros2_bridge": {"goal_topic": "/goal_pose"}}})
+    bus = make_bus("shepherd")
+    ros = sessions()
+    samples: list[tuple[str, bytes, bytes]] = []
+    sub = ros.declare_subscriber("0/**", lambda s: samples.append((
+        str(s.key_expr), s.payload.to_bytes(), s.attachment.to_bytes() if s.attachment else b"")))
+    stamp = 1_700_000_000_123_456_789
+
+    async def go() -> list[str]:
+        task = asyncio.create_task(run_deployment(dep, duration=15))
+        await wait_alive_async(bus.session, "ros2_bridge")
+        tokens = [str(r.ok.key_expr) for r in await asyncio.to_thread(
+            lambda: list(ros.liveliness().get("@ros2_lv/0/**", timeout=1.0))) if r.ok]
+        await asyncio.sleep(0.3)
+        bus.put(HUMANOID_POSE, _pose(0.6, -0.2, 0.5, stamp))
+        bus.put(CAMERA_GOAL, CameraGoal(stamp_ns=stamp, x=0.3, y=0.1, yaw=-1.0, reason="d"))
+        bus.put(ODOM, CameraPose(stamp_ns=stamp, x=0.05, y=0.0, yaw=0.25))
+        await asyncio.sleep(0.5)
+        bus.put(HUMANOID_POSE, _pose(0.61, -0.2, 0.5, stamp + 1))
+        await asyncio.sleep(0.5)
+        task.cancel()
+        return tokens
+    tokens = asyncio.run(go())
+    sub.undeclare()
+    by_topic: dict[str, list[tuple[bytes, bytes]]] = {}
+    for key, payload, attachment in samples:
+        by_topic.setdefault(key.split("/geometry_msgs")[0].split("/tf2_msgs")[0], []).append(
+            (payload, attachment))
+    zid = tokens[0].split("/")[2]
+    assert f"@ros2_lv/0/{zid}/0/0/NN/%/%/shepherd_bridge" in tokens
+    assert any("/MP/%/%/shepherd_bridge/%shepherd%humanoid%pose/geometry_msgs::msg::dds_::"
+               "PoseWithCovarianceStamped_/RIHS01_" in t for t in tokens)
+    assert any("/MS/%/%/shepherd_bridge/%odom/nav_msgs::msg::dds_::Odometry_/" in t
+               for t in tokens)
+    assert any("/MP/%/%/shepherd_bridge/%goal_pose/geometry_msgs::msg::dds_::PoseStamped_/"
+               in t for t in tokens)
+
+    (payload, attachment), second = by_topic["0/shepherd/humanoid/pose"][:2]
+    pose = rmw.deserialize(payload, convert.POSE_COV)
+    assert pose.header.frame_id == "world" and convert.stamp_ns(pose.header.stamp) == stamp
+    p, q = pose.pose.pose.position, pose.pose.pose.orientation
+    assert (p.x, p.y, p.z) == pytest.approx((0.6, -0.2, 0.0))
+    assert convert.quaternion_yaw(q) == pytest.approx(0.5)
+    cov = np.array(pose.pose.covariance).reshape(6, 6)
+    assert cov[0, 0] == 1e-4 and cov[0, 1] == 2e-5 and cov[0, 5] == 3e-6
+    assert cov[1, 1] == 4e-4 and cov[5, 1] == 5e-6 and cov[5, 5] == 6e-3
+    seq, source_ns, gid = rmw.unpack_attachment(attachment)
+    assert rmw.unpack_attachment(second[1])[0] == seq + 1 and len(gid) == 16
+    assert abs(source_ns - time.time_ns()) < 60e9
+
+    goal = rmw.deserialize(by_topic["0/goal_pose"][0][0], convert.POSE)
+    assert (goal.pose.position.x, goal.pose.position.y) == pytest.approx((0.3, 0.1))
+    assert convert.quaternion_yaw(goal.pose.orientation) == pytest.approx(-1.0)
+
+    frames = {}
+    for payload, _ in by_topic["0/tf"]:
+        for t in rmw.deserialize(payload, convert.TF).transforms:
+            frames[(t.header.frame_id, t.child_frame_id)] = t
+    humanoid, camera = frames[("world", "humanoid")], frames[("world", "camera_base")]
+    assert humanoid.transform.translation.x == pytest.approx(0.61)  # the latest
+    assert camera.transform.translation.x == pytest.approx(0.05)
+    assert convert.quaternion_yaw(camera.transform.rotation) == pytest.approx(0.25)
+
+
+def test_ros_odometry_and_goals_become_shepherd_messages(router, make_bus, sessions):
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"ros2_bridge": {
+                                "T_world_odom": [1.0, 2.0, math.pi / 2],
+                                "mission_goal_topic": "/shepherd/mission/goal"}}})
+    bus = make_bus("shepherd")
+    ros = sessions()
+    ts = rmw.typestore()
+    T = ts.types
+    odom = T[convert.ODOMETRY](
+        header=convert.header(1_700_000_000_000_000_042, "odom"), child_frame_id="base_link",
+        pose=T["geometry_msgs/msg/PoseWithCovariance"](
+            pose=T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=0.5, y=0.0, z=0.0),
+                orientation=convert.yaw_quaternion(0.3)), covariance=np.zeros(36)),
+        twist=T["geometry_msgs/msg/TwistWithCovariance"](
+            twist=T["geometry_msgs/msg/Twist"](linear=T["geometry_msgs/msg/Vector3"](
+                x=0.0, y=0.0, z=0.0), angular=T["geometry_msgs/msg/Vector3"](
+                x=0.0, y=0.0, z=0.0)), covariance=np.zeros(36)))
+    goal = T[convert.POSE](header=convert.header(5, "world"), pose=T["geometry_msgs/msg/Pose"](
+        position=T["geometry_msgs/msg/Point"](x=0.9, y=-0.1, z=0.0),
+        orientation=convert.yaw_quaternion(0.0)))
+
+    async def go() -> tuple[CameraPose, MissionGoal]:
+        odoms = bus.subscribe(ODOM, CameraPose, latest=False, queue=4)
+        missions = bus.subscribe(MISSION_GOAL, MissionGoal, latest=False, queue=4)
+        task = asyncio.create_task(run_deployment(dep, duration=15))
+        await wait_alive_async(bus.session, "ros2_bridge")
+        await asyncio.sleep(0.3)
+        gid = bytes(16)
+        ros.put(rmw.data_key(0, "/odom", convert.ODOMETRY), rmw.serialize(odom, convert.ODOMETRY),
+                attachment=rmw.pack_attachment(1, time.time_ns(), gid))
+        ros.put(rmw.data_key(0, "/shepherd/mission/goal", convert.POSE),
+                rmw.serialize(goal, convert.POSE),
+                attachment=rmw.pack_attachment(1, time.time_ns(), gid))
+        got = await odoms.recv(timeout=5), await missions.recv(timeout=5)
+        task.cancel()
+        return got
+    camera, mission = asyncio.run(go())
+    # the odometry frame sits at (1, 2) turned 90°: (0.5, 0) in it is (1, 2.5) in the world
+    assert (camera.x, camera.y) == pytest.approx((1.0, 2.5))
+    assert camera.yaw == pytest.approx(0.3 + math.pi / 2)
+    assert camera.stamp_ns == 1_700_000_000_000_000_042
+    assert mission.waypoints == [(0.9, -0.1)]
+
+
+def test_the_camera_image_and_its_info_reach_ros_rate_limited(router, make_bus, sessions):
+    from services.core.camera import CameraModel
+    from services.runtime.frames import encode_frame
+    from tests.conftest import wait_matched
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"ros2_bridge": {"image": True, "image_hz": 4}}})
+    bus = make_bus("camera")
+    ros = sessions()
+    got: dict[str, list[bytes]] = {"image": [], "info": []}
+    sub = ros.declare_subscriber("0/shepherd/camera/**", lambda s: got[
+        "image" if "CompressedImage" in str(s.key_expr) else "info"].append(
+        s.payload.to_bytes()))
+    image = np.full((480, 640, 3), (255, 0, 255), np.uint8)
+
+    async def go() -> None:
+        task = asyncio.create_task(run_deployment(dep, duration=15))
+        await wait_alive_async(bus.session, "ros2_bridge")
+        await wait_matched(bus, "camera/frame")
+        bus.put("camera/intrinsics", CameraModel.paper().to_message())
+        t0 = time.monotonic()
+        seq = 0
+        while time.monotonic() - t0 < 1.0:  # 30 fps for a second
+            bus.put_frame(*encode_frame(image, seq, 1_700_000_000_000_000_000 + seq))
+            seq += 1
+            await asyncio.sleep(1 / 30)
+        await asyncio.sleep(0.3)
+        task.cancel()
+    asyncio.run(go())
+    sub.undeclare()
+    assert 2 <= len(got["image"]) <= 6  # about 4 a second, not 30
+    img = rmw.deserialize(got["image"][0], convert.IMAGE)
+    assert img.format == "jpeg" and img.header.frame_id == "camera"
+    decoded = cv2.imdecode(np.asarray(img.data), cv2.IMREAD_COLOR)
+    assert decoded.shape == (480, 640, 3)
+    info = rmw.deserialize(got["info"][-1], convert.CAMERA_INFO)
+    assert (info.width, info.height) == (640, 480) and info.k[0] == pytest.approx(757.25)
