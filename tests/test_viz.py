@@ -4,21 +4,24 @@ import asyncio
 import base64
 import json
 import os
+import shutil
 import socket
 import struct
+import subprocess
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
-from schemas import HumanoidPose, MarkerInCamera, MarkerVertices
-from schemas.keys import HUMANOID_POSE, VERTICES
+from schemas import Command, HumanoidPose, MarkerInCamera, MarkerVertices, MissionState, Phase
+from schemas.keys import HUMANOID_POSE, MISSION_STATE, VERTICES
 from services.core.world import CircleObstacle, World
 from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
 from services.viz.convert import floor_scene, image, image_annotations
-from tests.conftest import free_port, wait_alive_async
+from tests.conftest import ROOT, free_port, wait_alive_async
 from tests.helpers.fake_frames import publish_frame, render_marker
 
 pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
@@ -30,6 +33,8 @@ POSE = HumanoidPose(seq=1, stamp_ns=5, x=0.3, y=0.0, yaw=0.2,
                     marker_in_camera=MarkerInCamera(position=(0, 0, 0.25),
                                                     quaternion=(0, 0, 0, 1)),
                     reprojection_px=0.1)
+STATE = MissionState(phase=Phase.WALKING, waypoint_index=0, distance_m=0.3,
+                     last_command=Command.WALK_FORWARD)
 
 
 def test_conversions():
@@ -115,3 +120,50 @@ def test_live_view_serves_the_camera_and_the_floor_plan(router, make_bus):
     assert {"/camera/image", "/camera/annotations", "/floor", "/humanoid/pose"} <= set(topics)
     assert topics["/humanoid/pose"] == "shepherd.HumanoidPose"  # not a generated name
     assert topics["/camera/image"] == "foxglove.CompressedImage"
+
+
+@pytest.fixture(scope="session")
+def foxglove_js(tmp_path_factory) -> Path:
+    """The official @foxglove/ws-protocol client and ws, installed from the npm registry."""
+    where = tmp_path_factory.mktemp("js")
+    shutil.copy(ROOT / "tests" / "js" / "foxglove_client.js", where)
+    res = subprocess.run(["npm", "install", "--no-audit", "--no-fund", "--silent",
+                          "@foxglove/ws-protocol@0.8", "ws@8"], cwd=where, capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == 0, f"npm install failed: {res.stderr[-2000:]}"
+    return where
+
+
+def test_the_official_foxglove_client_with_the_older_subprotocol_gets_every_channel(
+        router, make_bus, foxglove_js: Path):
+    """What Lichtblick and older Foxglove apps offer (foxglove.websocket.v1) works too."""
+    port = free_port()
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"viz": {"port": port, "fps": 20}}})
+    bus = make_bus("feeder")
+    frame = render_marker(0.3).image
+
+    async def go() -> subprocess.CompletedProcess[str]:
+        task = asyncio.create_task(run_deployment(dep, duration=60))
+        await wait_alive_async(bus.session, "viz")
+        client = asyncio.create_task(asyncio.to_thread(
+            subprocess.run, ["node", "foxglove_client.js", f"ws://127.0.0.1:{port}", "5", "30"],
+            cwd=foxglove_js, capture_output=True, text=True, timeout=60))
+        while not client.done():
+            publish_frame(bus, frame, 1)
+            bus.put(VERTICES, VERTS)
+            bus.put(HUMANOID_POSE, POSE)
+            bus.put(MISSION_STATE, STATE)
+            await asyncio.sleep(0.1)
+        task.cancel()
+        return client.result()
+    out = asyncio.run(go())
+    assert out.returncode == 0, out.stderr
+    got = {m["topic"]: m for m in map(json.loads, out.stdout.splitlines())}
+    assert set(got) == {"/camera/image", "/camera/annotations", "/floor", "/humanoid/pose",
+                        "/mission/state"}
+    assert {m["protocol"] for m in got.values()} == {"foxglove.websocket.v1"}
+    assert got["/humanoid/pose"]["schemaName"] == "shepherd.HumanoidPose"
+    assert got["/humanoid/pose"]["decoded"]["x"] == pytest.approx(POSE.x)
+    assert got["/mission/state"]["schemaName"] == "shepherd.MissionState"
+    assert got["/camera/image"]["bytes"] > 1000

@@ -30,6 +30,7 @@ from schemas.keys import (
 from services.runtime.clock import Ticker
 from services.runtime.config import ServiceSettings
 from services.runtime.context import ServiceContext
+from services.viz.negotiate import serve_both_subprotocols
 
 
 class Settings(ServiceSettings):
@@ -48,8 +49,12 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
         ctx.log.error("the viz service needs foxglove-sdk: pip install '.[viz]'")
         return
     bus = ctx.bus
-    server = foxglove.start_server(name="shepherd", host=config.host, port=config.port)
-    ctx.log.info("Foxglove server on ws://%s:%d", config.host, server.port)
+    # the SDK's server on a loopback port of its own; in front of it, on the configured
+    # port, a front that also takes the older subprotocol (Lichtblick, ws-protocol clients)
+    server = foxglove.start_server(name="shepherd", host="127.0.0.1", port=0)
+    front = await serve_both_subprotocols(config.host, config.port, server.port)
+    ctx.log.info("Foxglove server on ws://%s:%d (foxglove.sdk.v1 and foxglove.websocket.v1)",
+                 config.host, front.sockets[0].getsockname()[1])
     frames = bus.subscribe_frames()
     verts = bus.subscribe(VERTICES, MarkerVertices)
     poses = bus.subscribe(HUMANOID_POSE, HumanoidPose)
@@ -89,4 +94,5 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                                                ctx.deployment.world))
             await ticker.wait()
     finally:
+        front.close()
         server.stop()
