@@ -74,6 +74,9 @@ class FrameHeader(Message):
     width: int = Field(gt=0, le=16384)
     height: int = Field(gt=0, le=16384)
     encoding: FrameEncoding
+    stamp_source: Literal["grab", "container", "read"] | None = Field(default=None, description=(
+        "the clock of stamp_ns: a live camera's grab time, a video file's own timestamps, "
+        "or when an image file was read"))
 
     def expected_size(self) -> int | None:
         """Payload size in bytes for raw encodings, None for JPEG."""

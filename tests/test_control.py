@@ -146,7 +146,7 @@ def test_serial_backend_writes_the_codes_and_survives_unplug(tmp_path: Path):
         assert pty.read(1) == bytes([0x86])
         # a stale one is not resent
         await asyncio.sleep(0.06)
-        tx._pending = IrCommand(command=Command.TURN_LEFT, stamp_ns=time.time_ns() - 5 * 10**9)
+        tx.pending = IrCommand(command=Command.TURN_LEFT, stamp_ns=time.time_ns() - 5 * 10**9)
         await tx.retry_pending()
         assert pty.read(1, timeout=0.3) == b""
         assert tx.status().connected

@@ -264,15 +264,15 @@ def test_service_waits_briefly_for_odometry_that_trails_the_vertices():
     async def go():
         asyncio.get_running_loop().call_later(
             0.01, odom.queue.put_nowait, CameraPose(stamp_ns=100, x=0.3, y=0.0, yaw=0.0))
-        await svc._await_odometry(est, odom, 100, wait_s=1.0)  # arrives 10 ms later: taken
+        await svc.await_odometry(est, odom, 100, wait_s=1.0)  # arrives 10 ms later: taken
         assert est.odom.at(100, 0.5)[0] == (0.3, 0.0, 0.0) and not est.odom_stalled
-        await svc._await_odometry(est, odom, 200, wait_s=0.05)  # never comes: gives up once
+        await svc.await_odometry(est, odom, 200, wait_s=0.05)  # never comes: gives up once
         assert est.odom_stalled
         waits = odom.waits
-        await svc._await_odometry(est, odom, 300, wait_s=0.05)  # still none: no second wait
+        await svc.await_odometry(est, odom, 300, wait_s=0.05)  # still none: no second wait
         assert odom.waits == waits
         odom.queue.put_nowait(CameraPose(stamp_ns=400, x=0.4, y=0.0, yaw=0.0))
-        await svc._await_odometry(est, odom, 400, wait_s=0.05)
+        await svc.await_odometry(est, odom, 400, wait_s=0.05)
         assert not est.odom_stalled and est.odom.covers(400)
     asyncio.run(go())
 

@@ -44,6 +44,17 @@ class CameraModel:
         object.__setattr__(self, "K", K)
         object.__setattr__(self, "dist", dist)
 
+    def resized(self, width: int, height: int) -> CameraModel:
+        """The same camera for images resized to ``width`` x ``height`` (pixel centres at
+        +0.5: ``u' = (u + 0.5) sx - 0.5``); distortion is unchanged."""
+        sx, sy = width / self.width, height / self.height
+        K = self.K.copy()
+        K[0, :2] *= sx
+        K[1, 1] *= sy
+        K[0, 2] = (K[0, 2] + 0.5) * sx - 0.5
+        K[1, 2] = (K[1, 2] + 0.5) * sy - 0.5
+        return CameraModel(K, self.dist.copy(), width, height, self.rms_px)
+
     @classmethod
     def paper(cls) -> CameraModel:
         return cls(np.array(PAPER_K, dtype=np.float64), np.zeros(5), 640, 480)

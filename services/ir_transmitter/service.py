@@ -60,7 +60,7 @@ class Transmitter:
         self.sent = self.failed = self.coalesced = self.deadman_stops = 0
         self.last_error = ""
         self._last: tuple[Command, float] | None = None
-        self._pending: IrCommand | None = None  # latest command that failed to go out
+        self.pending: IrCommand | None = None  # latest command that failed to go out
 
     def status(self) -> IrBackendStatus:
         return IrBackendStatus(backend=self.backend.name, options=self.backend.options,
@@ -85,10 +85,10 @@ class Transmitter:
         except BackendError as err:
             self.failed += 1
             self.last_error = str(err)
-            self._pending = cmd
+            self.pending = cmd
             return False
         self.sent += 1
-        self._pending = None
+        self.pending = None
         self._last = (cmd.command, time.monotonic())
         return True
 
@@ -104,12 +104,12 @@ class Transmitter:
 
     async def retry_pending(self) -> None:
         """After a reconnect: resend the latest failed command if still fresh."""
-        cmd = self._pending
+        cmd = self.pending
         if cmd is None:
             return
         age = (time.time_ns() - cmd.stamp_ns) / 1e9
         if age > self.config.fresh_s:
-            self._pending = None
+            self.pending = None
             return
         reconnect = getattr(self.backend, "reconnect", None)
         if reconnect is not None and await asyncio.to_thread(reconnect):

@@ -111,7 +111,7 @@ class PoseEstimator:
         return self.odom.at(stamp_ns, self.config.odom_timeout_s)
 
 
-async def _await_odometry(est: PoseEstimator, odom, stamp_ns: int, wait_s: float) -> None:
+async def await_odometry(est: PoseEstimator, odom, stamp_ns: int, wait_s: float) -> None:
     """Take queued odometry; wait up to ``wait_s`` for a sample at or after ``stamp_ns``.
 
     After a wait runs out, frames do not wait again until odometry flows (one wait an outage).
@@ -162,7 +162,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
             est.camera = CameraModel.from_message(k)
         if not msg.found:
             continue
-        await _await_odometry(est, odom, msg.stamp_ns, config.odom_wait_s)
+        await await_odometry(est, odom, msg.stamp_ns, config.odom_wait_s)
         try:
             pose = est.estimate(msg)
         except PoseError as err:
