@@ -189,6 +189,8 @@ class Phase(StrEnum):
     WALKING = "walking"
     HOLD = "hold"
     WAITING_POSE = "waiting_pose"
+    SETTLING = "settling"
+    CORRECTING = "correcting"
     DONE = "done"
 
 
@@ -199,6 +201,8 @@ class MissionState(Message):
     distance_m: FiniteFloat | None = None
     heading_error_rad: FiniteFloat | None = None
     last_command: Command
+    reason: str = Field(default="", description="why this phase and command (e.g. why stopped)")
+    reversals: int = Field(default=0, ge=0, description="changes of walking or turning direction")
 
 
 class Hold(Message):

@@ -3,6 +3,7 @@ import math
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -24,7 +25,7 @@ ROOT = Path(__file__).resolve().parent.parent
 K = math.radians(15)
 
 
-def ctrl(**kw: float) -> HeuristicController:
+def ctrl(**kw: Any) -> HeuristicController:
     c = HeuristicController(ControlParams(turn_threshold_deg=15, turn_release_deg=5,
                                           goal_tolerance_m=0.02, stop_lead_m=0.01, **kw))
     c.set_waypoints([(1.0, 0.0)])
@@ -57,15 +58,45 @@ def test_controller_hysteresis_does_not_chatter():
     assert c.decide((0.1, 0, math.radians(10)), 0, False).command is Command.WALK_FORWARD
 
 
-def test_controller_stop_lead_and_waypoint_sequence():
+def test_controller_stop_lead_settling_and_waypoint_sequence():
     c = HeuristicController(ControlParams(goal_tolerance_m=0.02, stop_lead_m=0.01))
     c.set_waypoints([(0.5, 0.0), (0.5, 0.5)])
-    assert c.decide((0.0, 0.0, 0.0), 0, False).command is Command.WALK_FORWARD
-    d = c.decide((0.475, 0.0, 0.0), 0, False)  # 2.5 cm: within l + lead while walking
+    assert c.decide((0.0, 0.0, 0.0), 0, False, now_s=0.0).command is Command.WALK_FORWARD
+    d = c.decide((0.475, 0.0, 0.0), 0, False, now_s=1.0)  # 2.5 cm: within l + lead
+    assert (d.command, d.phase) == (Command.STOP, Phase.SETTLING) and d.reason
+    d = c.decide((0.49, 0.0, 0.0), 0, False, now_s=1.5)  # the last step still under way
+    assert (d.command, d.phase, d.waypoint_index) == (Command.STOP, Phase.SETTLING, 0)
+    d = c.decide((0.49, 0.0, 0.0), 0, False, now_s=2.0)  # settled 1 cm short: reached
     assert d.waypoint_index == 1 and d.command is Command.TURN_LEFT
-    assert c.decide((0.5, 0.49, math.pi / 2), 0, False).phase is Phase.DONE
+    d = c.decide((0.5, 0.49, math.pi / 2), 0, False, now_s=9.0)
+    assert d.phase is Phase.DONE and "waypoint reached: 1.0 cm off" in d.reason
+    assert c.reversals == 0
     c.set_waypoints([])
     assert c.decide((0, 0, 0), 0, False).phase is Phase.IDLE
+
+
+def test_an_overshoot_is_corrected_by_stepping_back_not_by_turning_round():
+    c = HeuristicController(ControlParams())
+    c.set_waypoints([(0.5, 0.0)])
+    c.decide((0.3, 0.0, 0.0), 0, False, now_s=0.0)
+    assert c.decide((0.47, 0.0, 0.0), 0, False, now_s=1.0).phase is Phase.SETTLING
+    d = c.decide((0.545, 0.002, 0.0), 0, False, now_s=2.0)  # the last step carried it past
+    assert (d.command, d.phase) == (Command.WALK_BACKWARD, Phase.CORRECTING)
+    assert "-4.5 cm to go" in d.reason
+    d = c.decide((0.54, 0.0, 0.0), 0, False, now_s=2.2)  # one step: stop at once after it
+    assert (d.command, d.phase) == (Command.STOP, Phase.SETTLING)
+    d = c.decide((0.51, 0.0, 0.0), 0, False, now_s=3.2)
+    assert d.phase is Phase.DONE and d.command is Command.STOP
+    assert c.reversals == 1  # forward, then back: one reversal
+
+
+def test_near_the_goal_the_gaits_sway_does_not_make_it_turn():
+    c = HeuristicController(ControlParams())
+    c.set_waypoints([(0.5, 0.0)])
+    for k, y in enumerate((0.004, -0.004, 0.004, -0.004)):  # 5-6 cm away, bearing ±5-12°
+        d = c.decide((0.44 + 0.004 * k, y, 0.1 * (-1) ** k), 0, False, now_s=0.1 * k)
+        assert d.command is Command.WALK_FORWARD, d
+    assert c.reversals == 0
 
 
 def planner(**kw) -> CameraPlanner:

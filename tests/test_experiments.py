@@ -22,3 +22,7 @@ def test_experiments_report_on_a_reduced_run(tmp_path: Path):
     assert float(ours.split("|")[-2].split()[0]) < 2.0
     d5 = float(report.split("r = 5% at d = ")[1].split()[0])
     assert 22.0 < d5 < 28.0
+    seeds = next(line for line in report.splitlines() if line.startswith("| ours, 5 seeds"))
+    median_cm, p90_cm, _, reversals = (c.strip() for c in seeds.split("|")[2:6])
+    assert float(median_cm.split()[0]) <= 2.0 and float(p90_cm.split()[0]) <= 3.0
+    assert int(reversals) <= 3

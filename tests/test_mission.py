@@ -18,12 +18,15 @@ def _final_error_cm(out: str) -> float:
     return float(m.group(1))
 
 
-def test_default_mission_reaches_the_goal_within_2_cm(tmp_path: Path):
+def test_default_mission_reaches_the_goal_within_3_cm(tmp_path: Path):
+    """The stepping humanoid, calibrated (not true) intrinsics, biased, noisy, late odometry."""
     proc = spawn_cli("--log-level", "WARNING", "run", "--listen", endpoint(), "--duration",
                      "90", cwd=tmp_path)
     out, err = proc.communicate(timeout=120)
     assert proc.returncode == 0, out + err
-    assert _final_error_cm(out) <= 2.0
+    assert _final_error_cm(out) <= 3.0
+    reversals = re.search(r"command reversals\s+(\d+)", out)
+    assert reversals and int(reversals.group(1)) <= 3, out
     assert "paper (x, y, z) cm" in out and "reached (3.3, 4.8, 58.2)" in out
     runs = list((tmp_path / "runs").iterdir())
     assert len(runs) == 1
@@ -62,4 +65,6 @@ def test_split_deployment_through_a_router(tmp_path: Path):
         router.send_signal(signal.SIGINT)
         router.communicate(timeout=10)
     assert laptop.returncode == 0, out + err[-3000:]
-    assert _final_error_cm(out) <= 2.0
+    assert _final_error_cm(out) <= 3.0
+    reversals = re.search(r"command reversals\s+(\d+)", out)
+    assert reversals and int(reversals.group(1)) <= 3, out

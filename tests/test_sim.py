@@ -77,41 +77,80 @@ def test_same_seed_same_frames():
     assert not np.array_equal(a[0], c[0])
 
 
-def test_each_ir_command_moves_the_humanoid_as_configured():
-    p = HumanoidParams(forward_speed_mps=0.1, backward_speed_mps=0.05,
-                       turn_rate_radps=math.radians(30), reaction_delay_s=0.2,
-                       slip_fraction=0.0, heading_noise_radps=0.0)
+def _run(h: Humanoid, seconds: float, dt: float = 0.01) -> None:
+    for _ in range(round(seconds / dt)):
+        h.step(dt)
+
+
+EXACT = HumanoidParams(slip_fraction=0.0, heading_drift_deg=0.0, turn_noise_fraction=0.0,
+                       reaction_delay_s=0.2)
+
+
+def test_the_humanoid_walks_in_whole_steps_and_a_stop_finishes_the_step():
+    p = EXACT
     h = Humanoid(0.0, 0.0, 0.0, p)
     h.receive(Command.WALK_FORWARD)
-    for _ in range(100):
-        h.step(0.01)
-    assert h.x == pytest.approx(0.1 * 0.8, abs=2e-3)  # 1 s minus the 0.2 s reaction delay
+    _run(h, 0.19)
+    assert h.x == 0.0 and not h.moving  # the reaction delay
+    _run(h, 1.0)  # 1 s of walking: one whole step and part of the next
+    assert p.step_length_m < h.x < 2 * p.step_length_m and h.moving
     h.receive(Command.STOP)
-    for _ in range(100):
-        h.step(0.01)
-    x_stopped = h.x
-    assert x_stopped == pytest.approx(0.08 + 0.1 * 0.2, abs=2e-3)  # walked until the delay
-    h.receive(Command.TURN_LEFT)
-    for _ in range(120):
-        h.step(0.01)
-    assert h.yaw == pytest.approx(math.radians(30), abs=6e-3) and h.x == x_stopped
-    h.receive(Command.TURN_RIGHT)
-    for _ in range(120):
-        h.step(0.01)
-    assert h.yaw == pytest.approx(math.radians(6), abs=6e-3)  # 0.2 s more left, then 1 s right
+    _run(h, 1.0)
+    assert h.x == pytest.approx(2 * p.step_length_m, abs=1e-9)  # the second step finished
+    assert h.y == pytest.approx(0.0, abs=1e-9) and not h.moving
     h.receive(Command.WALK_BACKWARD)
-    for _ in range(120):
+    _run(h, 0.2 + p.step_period_s / 2)
+    h.receive(Command.STOP)
+    _run(h, 1.0)
+    assert h.x == pytest.approx(2 * p.step_length_m - p.back_step_length_m, abs=1e-9)
+
+
+def test_turns_are_whole_turning_steps():
+    p = EXACT
+    h = Humanoid(0.0, 0.0, 0.0, p)
+    h.receive(Command.TURN_LEFT)
+    _run(h, 0.2 + 2.5 * p.turn_period_s)
+    h.receive(Command.STOP)
+    _run(h, 1.0)
+    assert h.yaw == pytest.approx(math.radians(3 * p.turn_step_deg), abs=1e-9)
+    assert (h.x, h.y) == (0.0, 0.0)
+    h.receive(Command.TURN_RIGHT)
+    _run(h, 0.2 + 0.5 * p.turn_period_s)
+    h.receive(Command.STOP)
+    _run(h, 1.0)
+    assert h.yaw == pytest.approx(math.radians(2 * p.turn_step_deg), abs=1e-9)
+
+
+def test_the_body_sways_within_a_step_and_steps_drift_and_slip():
+    p = HumanoidParams(slip_fraction=0.0, heading_drift_deg=0.0, reaction_delay_s=0.0)
+    h = Humanoid(0.0, 0.0, 0.0, p)
+    h.receive(Command.WALK_FORWARD)
+    side = []
+    for _ in range(round(2 * p.step_period_s / 0.01)):
         h.step(0.01)
-    assert h.x == pytest.approx(x_stopped - 0.05, abs=2e-3)
+        side.append(h.y)
+    assert max(side) == pytest.approx(p.sway_m, rel=0.01)   # one step to the left,
+    assert min(side) == pytest.approx(-p.sway_m, rel=0.01)  # the next to the right
+    noisy = [Humanoid(0.0, 0.0, 0.0, HumanoidParams(reaction_delay_s=0.0), seed=s)
+             for s in range(20)]
+    for n in noisy:
+        n.receive(Command.WALK_FORWARD)
+        _run(n, 10 * n.params.step_period_s - 1e-6)
+    q = noisy[0].params
+    xs = np.array([n.x for n in noisy])
+    yaws = np.degrees([n.yaw for n in noisy])
+    assert 0.3 < xs.std() / (q.step_length_m * q.slip_fraction * math.sqrt(10)) < 3
+    assert 0.3 < yaws.std() / (q.heading_drift_deg * math.sqrt(10)) < 3
 
 
 def test_humanoid_walks_on_until_stopped_and_is_blocked_by_obstacles():
     world = World(obstacles=[CircleObstacle(x=0.5, y=0.0, radius=0.1)])
-    h = Humanoid(0.0, 0.0, 0.0, HumanoidParams(slip_fraction=0, heading_noise_radps=0))
+    h = Humanoid(0.0, 0.0, 0.0, HumanoidParams(slip_fraction=0, heading_drift_deg=0))
     h.receive(Command.WALK_FORWARD)
     for _ in range(2000):
         h.step(0.01, world)
-    assert 0.3 < h.x < 0.5 - 0.1 - h.params.radius_m + 0.01
+    limit = 0.5 - 0.1 - h.params.radius_m  # touching the obstacle
+    assert limit - h.params.step_length_m < h.x <= limit  # the last whole step that fits
 
 
 def test_camera_robot_reaches_a_goal_within_limits():
@@ -184,3 +223,27 @@ def test_frame_source_publishes_an_image_folder_and_survives_a_missing_device(
         code = await run_deployment(missing, duration=1.5)
         assert code == 0
     asyncio.run(go())
+
+
+def test_odometry_comes_at_its_own_rate_late_and_biased():
+    from services.sim.service import OdometryFeed
+    robot = CameraRobot(0.0, 0.0, 0.0, CameraRobotParams(odom_bias=(0.01, 0.0, 0.0),
+                                                         odom_noise_m=0.0, odom_noise_rad=0.0))
+    feed = OdometryFeed(hz=20.0, latency_s=0.02)
+    released = []
+    for k in range(30):  # one second of 30 fps frames
+        now_ns = k * 33_333_333
+        released += [(now_ns, s) for s in feed.tick(k / 30, now_ns, robot.odometry)]
+    assert 18 <= len(released) <= 21  # about 20 a second, not 30
+    assert all(now - s.stamp_ns >= 20_000_000 for now, s in released)  # never early
+    assert all(s.x == pytest.approx(0.01) for _, s in released)
+
+
+def test_the_shipped_calibration_of_the_simulated_camera_is_ours_and_close_to_the_truth():
+    from services.data import SIM_CAMERA
+    from services.tools.sim_calibration import calibrate_simulated
+    shipped = CameraModel.load(SIM_CAMERA)
+    cal = calibrate_simulated(CameraModel.paper())
+    assert np.allclose(shipped.K, cal.K, rtol=1e-8, atol=1e-6)  # regenerated: the same file
+    assert not np.array_equal(shipped.K, CameraModel.paper().K)  # a measurement, not truth
+    assert np.allclose(shipped.K, CameraModel.paper().K, rtol=2e-3, atol=0.5)

@@ -129,6 +129,9 @@ def _line_families(grey: np.ndarray, n_rows: int, n_cols: int
 
 def _intersect_rt(l1: tuple[float, float], l2: tuple[float, float]) -> np.ndarray:
     A = np.array([[math.cos(l1[1]), math.sin(l1[1])], [math.cos(l2[1]), math.sin(l2[1])]])
+    if abs(np.linalg.det(A)) < 1e-9:
+        raise DetectionError("a row line and a column line of the grid are parallel: the two "
+                             "line families were not told apart (is the whole grid in view?)")
     return np.linalg.solve(A, [l1[0], l2[0]])
 
 

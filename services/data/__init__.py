@@ -11,7 +11,9 @@ from pathlib import Path
 DATA_DIR = Path(__file__).resolve().parent
 #: The deployment ``shepherd run`` runs without a file: the paper's control experiment.
 DEFAULT_DEPLOYMENT = DATA_DIR / "sim.toml"
-#: The paper's 640 x 480 web camera (eq. 3).
+#: The paper's 640 x 480 web camera (eq. 3): the simulator's true camera.
 PAPER_CAMERA = DATA_DIR / "paper-camera.toml"
+#: Our own calibration of that simulated camera (``services/tools/sim_calibration.py``).
+SIM_CAMERA = DATA_DIR / "sim-camera.toml"
 
-__all__ = ["DATA_DIR", "DEFAULT_DEPLOYMENT", "PAPER_CAMERA"]
+__all__ = ["DATA_DIR", "DEFAULT_DEPLOYMENT", "PAPER_CAMERA", "SIM_CAMERA"]

@@ -75,7 +75,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                 hold = False
             was_done = ctrl.phase is Phase.DONE
             try:
-                d = ctrl.decide(pose, age_s(poses.last_received_ns), hold)
+                d = ctrl.decide(pose, age_s(poses.last_received_ns), hold, time.monotonic())
             except Exception:
                 log.exception("control step failed; stopping the humanoid")
                 send(Command.STOP)
@@ -86,7 +86,8 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
             bus.put(MISSION_STATE, MissionState(phase=d.phase, waypoint_index=d.waypoint_index,
                                                 distance_m=d.distance_m,
                                                 heading_error_rad=d.heading_error_rad,
-                                                last_command=last_cmd or Command.STOP))
+                                                last_command=last_cmd or Command.STOP,
+                                                reason=d.reason, reversals=ctrl.reversals))
             if d.phase is Phase.DONE and not was_done:
                 log.info("mission complete (e = %.1f cm)", 100 * (d.distance_m or 0.0))
                 if config.exit_when_done:

@@ -51,6 +51,8 @@ class Recorder:
         self.poses: list[tuple[float, float, float, float, float]] = []
         self.latency_ms: list[float] = []
         self.holds = 0  # times the camera planner held the humanoid (critical angle)
+        self.reversals = 0  # the controller's changes of walking or turning direction
+        self.stop_reason = ""
 
     def _t(self, stamp_ns: int) -> float:
         if self.t0 is None:
@@ -131,6 +133,8 @@ def summary(rec: Recorder, goal: tuple[float, float] | None) -> tuple[str, float
         lines.append(f"  final error          {100 * final_err:.1f} cm "
                      f"({'truth' if rec.truth else 'estimate'})")
     lines.append(f"  critical-angle holds {rec.holds}")
+    lines.append(f"  command reversals    {rec.reversals}"
+                 + (f"  ({rec.stop_reason})" if rec.stop_reason else ""))
     if rec.latency_ms:
         lat = np.array(rec.latency_ms)
         lines.append(f"  frame-to-pose        p50 {np.median(lat):.1f} ms, "
@@ -174,6 +178,9 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                 n_poses += 1
             if (s := states.get_nowait()) is not None:
                 state = s
+                rec.reversals = s.reversals
+                if s.phase is Phase.DONE:
+                    rec.stop_reason = s.reason
             while (h := holds.get_nowait()) is not None:
                 rec.holds += int(h.hold and not holding)
                 holding = h.hold

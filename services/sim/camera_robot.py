@@ -18,8 +18,15 @@ class CameraRobotParams(BaseModel):
     max_yaw_rate_radps: float = Field(default=1.5, gt=0.0)
     radius_m: float = Field(default=0.08, gt=0.0)
     position_tolerance_m: float = Field(default=0.005, gt=0.0)
-    odom_noise_m: float = Field(default=0.0, ge=0.0, description="1-sigma localisation noise")
-    odom_noise_rad: float = Field(default=0.0, ge=0.0)
+    # the pose its locating system reports (the paper's camera robot has one): a constant
+    # bias and white noise (estimates of a small robot's), at its own rate, late
+    odom_bias: tuple[float, float, float] = Field(default=(0.003, -0.002, 0.005), description=(
+        "constant error of the reported pose: x m, y m, yaw rad"))
+    odom_noise_m: float = Field(default=0.001, ge=0.0, description="1-sigma white noise")
+    odom_noise_rad: float = Field(default=0.002, ge=0.0)
+    odom_hz: float = Field(default=20.0, gt=0.0, description="its own rate, not the frames'")
+    odom_latency_s: float = Field(default=0.02, ge=0.0,
+                                  description="published this long after its stamp")
 
 
 class CameraRobot:
@@ -64,8 +71,9 @@ class CameraRobot:
         self.yaw = wrap_angle(self.yaw + w * dt)
 
     def odometry(self) -> tuple[float, float, float]:
-        """The pose as the robot's locating system reports it (with configured noise)."""
+        """The pose as the robot's locating system reports it: its bias and white noise."""
         p = self.params
         n = self._rng.standard_normal(3)
-        return (self.x + p.odom_noise_m * n[0], self.y + p.odom_noise_m * n[1],
-                wrap_angle(self.yaw + p.odom_noise_rad * n[2]))
+        bx, by, byaw = p.odom_bias
+        return (self.x + bx + p.odom_noise_m * n[0], self.y + by + p.odom_noise_m * n[1],
+                wrap_angle(self.yaw + byaw + p.odom_noise_rad * n[2]))

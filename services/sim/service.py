@@ -10,6 +10,8 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from collections import deque
+from collections.abc import Callable
 
 from pydantic import Field
 
@@ -59,6 +61,28 @@ def build_world(config: Settings, geometry: Geometry, world: World) -> SimWorld:
                     seed=config.seed)
 
 
+class OdometryFeed:
+    """Samples the camera robot's odometry at its own rate (sim time) and releases each
+    sample ``latency_s`` after its stamp, as a real locating system would."""
+
+    def __init__(self, hz: float, latency_s: float) -> None:
+        self.period_s, self.latency_ns = 1.0 / hz, int(latency_s * 1e9)
+        self._next_s = 0.0
+        self._queue: deque[CameraPose] = deque(maxlen=256)
+
+    def tick(self, sim_time_s: float, now_ns: int,
+             read: Callable[[], tuple[float, float, float]]) -> list[CameraPose]:
+        if sim_time_s >= self._next_s:
+            self._next_s += self.period_s * max(1, math.ceil(
+                (sim_time_s - self._next_s) / self.period_s))
+            x, y, yaw = read()
+            self._queue.append(CameraPose(stamp_ns=now_ns, x=x, y=y, yaw=yaw))
+        out = []
+        while self._queue and self._queue[0].stamp_ns + self.latency_ns <= now_ns:
+            out.append(self._queue.popleft())
+        return out
+
+
 async def main(ctx: ServiceContext, config: Settings) -> None:
     bus = ctx.bus
     sim = build_world(config, ctx.geometry, ctx.world)
@@ -70,6 +94,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
     base_style = sim.style
     ticker = Ticker(dt / config.speedup)
     seq = 0
+    odometry = OdometryFeed(sim.robot.params.odom_hz, sim.robot.params.odom_latency_s)
     while True:
         while (cmd := commands.get_nowait()) is not None:
             sim.command(cmd.command)
@@ -82,8 +107,9 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                                        "brightness": base_style.brightness * gain})
         rendered = sim.render()
         stamp = time.time_ns()
-        ox, oy, oyaw = sim.robot.odometry()  # odometry first: the pose estimator needs it
-        bus.put(ODOM, CameraPose(stamp_ns=stamp, x=ox, y=oy, yaw=oyaw))
+        # odometry on its own rate, published its latency after its stamp
+        for sample in odometry.tick(sim.time_s, stamp, sim.robot.odometry):
+            bus.put(ODOM, sample)
         T = rendered.T_camera_marker
         h, r = sim.humanoid, sim.robot
         bus.put(SIM_TRUTH, SimTruth(
