@@ -28,6 +28,7 @@ ODOM = "camera/odom"
 CAMERA_GOAL = "camera/goal"
 VERTICES = "marker/vertices"
 HUMANOID_POSE = "humanoid/pose"
+HUMANOID_POSE_FILTERED = "humanoid/pose_filtered"
 MISSION_GOAL = "mission/goal"
 MISSION_STATE = "mission/state"
 MISSION_HOLD = "mission/hold"
@@ -50,6 +51,7 @@ TOPICS: dict[str, type[Message] | None] = {
     CAMERA_GOAL: CameraGoal,
     VERTICES: MarkerVertices,
     HUMANOID_POSE: HumanoidPose,
+    HUMANOID_POSE_FILTERED: HumanoidPose,
     MISSION_GOAL: MissionGoal,
     MISSION_STATE: MissionState,
     MISSION_HOLD: Hold,

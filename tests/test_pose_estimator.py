@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from schemas import CameraPose, HumanoidPose, MarkerVertices
-from schemas.keys import HUMANOID_POSE, ODOM, VERTICES
+from schemas.keys import HUMANOID_POSE, HUMANOID_POSE_FILTERED, ODOM, VERTICES
 from services.core.camera import CameraModel, undistort_px
 from services.core.geometry import T_floor, inv_T
 from services.core.mounts import Geometry
@@ -204,6 +204,7 @@ def test_service_publishes_world_pose_and_nulls_without_odometry(router, make_bu
 
     async def go():
         poses = bus.subscribe(HUMANOID_POSE, HumanoidPose, latest=False, queue=16)
+        steady = bus.subscribe(HUMANOID_POSE_FILTERED, HumanoidPose, latest=False, queue=16)
         task = asyncio.create_task(run_deployment(dep, duration=15))
         await wait_alive_async(bus.session, "pose_estimator")
         bus.put(VERTICES, vertices(1, 10**18))
@@ -216,6 +217,9 @@ def test_service_publishes_world_pose_and_nulls_without_odometry(router, make_bu
         p2 = await poses.recv(timeout=5)
         assert (p2.x, p2.y, p2.yaw) == pytest.approx((0.4, 0.02, 0.1), abs=1e-6)
         assert p2.covariance is not None
+        s2 = await steady.recv(timeout=5)  # the steady pose, beside it, starts there
+        assert (s2.seq, s2.x, s2.y) == (2, pytest.approx(0.4, abs=1e-6), pytest.approx(0.02))
+        assert s2.covariance is not None and s2.covariance[0][0] > p2.covariance[0][0]
         bad = MarkerVertices(seq=3, stamp_ns=1, found=True,
                              vertices_px=((1, 1), (1, 1), (1, 1), (1, 1)))
         bus.put(VERTICES, bad)  # degenerate: logged, no pose, service stays up
@@ -342,3 +346,37 @@ def test_hostile_vertices_give_a_pose_or_a_reason_never_a_crash(vertices, stamp,
         assert str(err)
         return
     assert HumanoidPose.model_validate_json(pose.model_dump_json()) == pose
+
+
+def test_the_steady_pose_damps_the_gaits_sway_and_settles_where_the_humanoid_stops():
+    from services.pose_estimator.pose_filter import PoseFilter
+    f = PoseFilter()
+    rng = np.random.default_rng(4)
+    raw, steady, truth = [], [], []
+    for k in range(300):  # 6 s walking at 6.7 cm/s, then 4 s standing
+        t = k / 30
+        x = 0.3 + 0.067 * min(t, 6.0)
+        sway = 0.004 * math.sin(math.pi * t / 0.6) if t < 6.0 else 0.0  # the marker's rock
+        z = (x + 5e-4 * rng.standard_normal(), sway + 5e-4 * rng.standard_normal(), 0.0)
+        out, P = f.update(int(t * 1e9), z, np.diag([2.5e-7, 2.5e-7, 1e-4]))
+        raw.append(z)
+        steady.append(out)
+        truth.append(x)
+    raw_a, steady_a = np.array(raw), np.array(steady)
+    walking = slice(60, 170)
+    assert steady_a[walking, 1].std() < 0.75 * raw_a[walking, 1].std()
+    assert abs(steady_a[-1, 0] - truth[-1]) < 1e-3 and abs(steady_a[-1, 1]) < 1e-3
+    assert np.all(np.linalg.eigvalsh(P) > 0) and f.restarts == 0
+
+
+def test_the_steady_pose_restarts_on_a_jump_and_wraps_heading():
+    from services.pose_estimator.pose_filter import PoseFilter
+    f = PoseFilter()
+    for k in range(10):
+        f.update(k * 33_000_000, (0.5, 0.0, math.pi - 0.01), None)
+    out, _ = f.update(10 * 33_000_000, (0.5, 0.0, -math.pi + 0.01), None)  # across ±pi
+    assert abs(out[2]) > math.pi - 0.02 and f.restarts == 0
+    out, _ = f.update(11 * 33_000_000, (0.9, 0.3, 0.0), None)  # found elsewhere: restart
+    assert tuple(out) == (0.9, 0.3, 0.0) and f.restarts == 1
+    f.update(5 * 33_000_000, (0.9, 0.3, 0.0), None)  # a stamp going back: restart
+    assert f.restarts == 2

@@ -18,7 +18,9 @@ pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
 def test_record_then_replay_frames_reproduces_the_poses(tmp_path: Path, router, make_bus):
     live = parse_deployment({
         "zenoh": {"connect": [router], "multicast_scouting": False},
-        "services": {"sim": {"intrinsics": str(ROOT / "deploy/paper-camera.toml"), "fps": 15},
+        # odometry with every frame, at once: the poses then depend on the recording alone
+        "services": {"sim": {"intrinsics": str(ROOT / "deploy/paper-camera.toml"), "fps": 15,
+                             "camera_robot": {"odom_hz": 15, "odom_latency_s": 0.0}},
                      "vertex_extractor": {},
                      "pose_estimator": {"intrinsics": str(ROOT / "deploy/paper-camera.toml")}}})
     rec_path = tmp_path / "run.mcap"

@@ -122,7 +122,8 @@ def test_turns_are_whole_turning_steps():
 
 
 def test_the_body_sways_within_a_step_and_steps_drift_and_slip():
-    p = HumanoidParams(slip_fraction=0.0, heading_drift_deg=0.0, reaction_delay_s=0.0)
+    p = HumanoidParams(slip_fraction=0.0, heading_drift_deg=0.0, reaction_delay_s=0.0,
+                       sway_m=0.004)
     h = Humanoid(0.0, 0.0, 0.0, p)
     h.receive(Command.WALK_FORWARD)
     side = []

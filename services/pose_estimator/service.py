@@ -17,7 +17,7 @@ from schemas import (
     MarkerVertices,
     describe_validation_error,
 )
-from schemas.keys import HUMANOID_POSE, INTRINSICS, ODOM, VERTICES
+from schemas.keys import HUMANOID_POSE, HUMANOID_POSE_FILTERED, INTRINSICS, ODOM, VERTICES
 from services.core.camera import CameraModel
 from services.core.geometry import T_floor, inv_T, quaternion_from_R
 from services.pose_estimator.estimate import (
@@ -28,6 +28,7 @@ from services.pose_estimator.estimate import (
 )
 from services.pose_estimator.odometry import OdometryBuffer
 from services.pose_estimator.p4p import PoseError
+from services.pose_estimator.pose_filter import FilterParams, PoseFilter
 from services.runtime.config import RelPath, ServiceSettings
 from services.runtime.context import ServiceContext
 
@@ -45,6 +46,8 @@ class Settings(ServiceSettings):
     vertex_sigma_px: float = Field(default=0.2, gt=0.0, description="vertex noise, 1-sigma px")
     tilt_sigma_deg: float = Field(default=3.0, gt=0.0, le=45.0,
                                   description="upright prior: marker normal level within (deg)")
+    filter: FilterParams = Field(default_factory=FilterParams, description=(
+        "the steady pose published on humanoid/pose_filtered"))
     continuity_window_s: float = Field(default=0.3, ge=0.0,
                                        description="use the previous pose this recent as a prior")
 
@@ -62,6 +65,7 @@ class PoseEstimator:
         self.odom = OdometryBuffer(maxlen=64)
         self.odom_stalled = False  # the last wait for odometry ran out; none since
         self._previous: tuple[int, np.ndarray] | None = None  # (stamp_ns, R) of the last pose
+        self.steady = PoseFilter(config.filter)
 
     def estimate(self, msg: MarkerVertices) -> HumanoidPose:
         """Raises PoseError when the vertices give no pose (or one no message can carry)."""
@@ -100,6 +104,19 @@ class PoseEstimator:
         return HumanoidPose(seq=msg.seq, stamp_ns=msg.stamp_ns, x=x, y=y, yaw=yaw,
                             marker_in_camera=marker, reprojection_px=mp.reprojection_px,
                             covariance=cov_rows, area_ratio=msg.area_ratio)  # type: ignore[arg-type]
+
+    def filtered(self, pose: HumanoidPose) -> HumanoidPose | None:
+        """The steady counterpart of a world pose (None while the world pose is unknown)."""
+        if pose.x is None or pose.y is None or pose.yaw is None:
+            return None
+        cov = np.array(pose.covariance) if pose.covariance is not None else None
+        (x, y, yaw), P = self.steady.update(pose.stamp_ns, (pose.x, pose.y, pose.yaw), cov)
+        try:
+            return pose.model_copy(update={
+                "x": float(x), "y": float(y), "yaw": float(yaw),
+                "covariance": tuple(tuple(float(v) for v in row) for row in P)})
+        except ValidationError:
+            return None
 
     def needs_odometry(self, stamp_ns: int) -> bool:
         """True while no odometry at or after ``stamp_ns`` has arrived (and the camera moves)."""
@@ -171,3 +188,5 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                 log.warning("no pose for frame %d: %s", msg.seq, err)
             continue
         bus.put(HUMANOID_POSE, pose)
+        if (steady := est.filtered(pose)) is not None:
+            bus.put(HUMANOID_POSE_FILTERED, steady)

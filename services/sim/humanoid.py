@@ -2,15 +2,16 @@
 
 Its walk is static (paper section 5): discrete steps. A walking step carries the body one
 ``step_length_m`` forward (or ``back_step_length_m`` backward) in ``step_period_s``, along a
-smooth profile, the body swaying sideways towards the stance foot and back (alternating each
-step) and the marker rolling with it; each step's length slips and its heading drifts a
-little. A turn is made of discrete turning steps of ``turn_step_deg``. A command takes effect
-after ``reaction_delay_s``; a new command (``stop`` included) waits for the current step to
-finish, as the toy's does.
+smooth profile, the torso rocking sideways over the stance foot and back (alternating each
+step), so the marker on its back moves across the path while the feet's path stays smooth;
+each step's length slips and its heading drifts a little. A turn is made of discrete turning
+steps of ``turn_step_deg``. A command takes effect after ``reaction_delay_s``; a new command
+(``stop`` included) waits for the current step to finish, as the toy's does.
 
 The defaults are estimates, not published figures: WowWee's manual and product pages give no
 speed, stride or turn rate, and none was found in the literature available here. A stride of
-4 cm every 0.6 s (6.7 cm/s), 12° turning steps at 30°/s, 4 mm of sway and a 0.15 s IR
+4 cm every 0.6 s (6.7 cm/s), 12° turning steps at 30°/s, a 1.1° rock (4 mm at the marker)
+and a 0.15 s IR
 reaction delay match footage of the toy's gait as well as we could judge; all are settings.
 """
 
@@ -43,8 +44,10 @@ class HumanoidParams(BaseModel):
                                      description="1-sigma heading change per walking step")
     turn_noise_fraction: float = Field(default=0.1, ge=0.0,
                                        description="1-sigma noise of a turning step")
-    sway_m: float = Field(default=0.004, ge=0.0, description="body's sideways sway")
-    sway_rad: float = Field(default=0.02, ge=0.0, description="marker roll in the gait")
+    sway_m: float = Field(default=0.0, ge=0.0, description=(
+        "the body origin's sideways shift in a step (the toy mostly rocks about its feet)"))
+    sway_rad: float = Field(default=0.02, ge=0.0, description=(
+        "the torso's roll in a step: the marker, 20 cm up, moves 4 mm sideways"))
     radius_m: float = Field(default=0.09, gt=0.0)
 
 

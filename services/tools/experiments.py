@@ -31,6 +31,7 @@ from services.data import SIM_CAMERA
 from services.mission_controller.controller import ControlParams, HeuristicController
 from services.monitor.plot import line_plot
 from services.pose_estimator.estimate import estimate_marker_pose, up_in_camera
+from services.pose_estimator.pose_filter import PoseFilter
 from services.pose_estimator.service import PoseEstimator
 from services.pose_estimator.service import Settings as PoseSettings
 from services.sim.render import RenderStyle, render_view
@@ -115,17 +116,19 @@ def table3(trials: int, seed: int = 0) -> tuple[str, dict[str, float]]:
 
 @dataclass(frozen=True)
 class ControlRun:
-    truth: np.ndarray       # (t s, true x m)
-    estimates: np.ndarray   # (t s, estimated x m)
+    truth: np.ndarray       # (t s, true x m, true y m)
+    estimates: np.ndarray   # (t s, estimated x m, y m): raw
+    filtered: np.ndarray    # (t s, x m, y m): the steady pose
     final: tuple[float, float]  # the humanoid's true final position (m)
     reversals: int
     reason: str             # how the controller ended
 
 
-def control_run(seed: int = 1, max_s: float = 30.0, fps: float = 30.0) -> ControlRun:
+def control_run(seed: int = 1, max_s: float = 30.0, fps: float = 30.0,
+                steer_by_filtered: bool = False) -> ControlRun:
     """The paper's control experiment in a direct loop of the services' own modules: the
     stepping humanoid, the estimator on our calibration of the camera (not its truth), the
-    camera fixed as in the paper, control at 10 Hz."""
+    camera fixed as in the paper, control at 10 Hz on the raw or the filtered pose."""
     g = Geometry()
     sim = SimWorld(camera=CameraModel.paper(), geometry=g, world=World(),
                    humanoid_start=(0.29, 0.0, 0.0), camera_start=(0.0, 0.0, 0.0), seed=seed)
@@ -134,7 +137,8 @@ def control_run(seed: int = 1, max_s: float = 30.0, fps: float = 30.0) -> Contro
     est = PoseEstimator(calibrated, g, PoseSettings(static_camera_pose=(0.0, 0.0, 0.0)))
     ctrl = HeuristicController(ControlParams())
     ctrl.set_waypoints([(0.60, 0.0)])
-    truth, estimates = [], []
+    truth, estimates, filtered = [], [], []
+    steady = PoseFilter()
     last: Command | None = None
     dt = 1.0 / fps
     done_at = None
@@ -151,8 +155,13 @@ def control_run(seed: int = 1, max_s: float = 30.0, fps: float = 30.0) -> Contro
             p = est.estimate(msg)
             assert p.x is not None and p.y is not None and p.yaw is not None
             pose = (p.x, p.y, p.yaw)
-            estimates.append((t, p.x))
-        truth.append((t, sim.humanoid.x))
+            f, _ = steady.update(msg.stamp_ns, pose, None if p.covariance is None
+                                 else np.array(p.covariance))
+            estimates.append((t, p.x, p.y))
+            filtered.append((t, f[0], f[1]))
+            if steer_by_filtered:
+                pose = (float(f[0]), float(f[1]), float(f[2]))
+        truth.append((t, sim.humanoid.x, sim.humanoid.y))
         if k % 3 == 0:  # 10 Hz control
             d = ctrl.decide(pose, 0.0, False, now_s=t)
             reason = d.reason
@@ -163,8 +172,8 @@ def control_run(seed: int = 1, max_s: float = 30.0, fps: float = 30.0) -> Contro
                 done_at = t
         if done_at is not None and t - done_at > 1.5:
             break
-    return ControlRun(np.array(truth), np.array(estimates), (sim.humanoid.x, sim.humanoid.y),
-                      ctrl.reversals, reason)
+    return ControlRun(np.array(truth), np.array(estimates), np.array(filtered),
+                      (sim.humanoid.x, sim.humanoid.y), ctrl.reversals, reason)
 
 
 def control_statistics(seeds: int) -> tuple[np.ndarray, np.ndarray]:
