@@ -82,15 +82,19 @@ class Recorder:
                 w.writerow(["estimate", f"{t:.3f}", f"{x:.5f}", f"{y:.5f}", f"{yaw:.5f}",
                             "", "", ""])
         series = []
-        if self.poses:
-            p = np.array(self.poses)
-            series.append(("estimated (cm)", p[:, 0], 100 * p[:, 1]))
+        residual = None
         if self.truth:
             tr = np.array(self.truth)
             series.append(("true (cm)", tr[:, 0], 100 * tr[:, 1]))
+        if self.poses:
+            p = np.array(self.poses)
+            series.append(("estimated (cm)", p[:, 0], 100 * p[:, 1]))
+            if self.truth:
+                residual = ("estimate - truth (mm)", p[:, 0],
+                            1000 * (p[:, 1] - np.interp(p[:, 0], tr[:, 0], tr[:, 1])))
         img = line_plot(series, title="Humanoid distance from the camera's start along the "
                         "floor (paper Fig. 9: z)", xlabel="time (s)", ylabel="cm",
-                        hlines=[("paper goal 60 cm", 60.0)])
+                        hlines=[("paper goal 60 cm", 60.0)], residual=residual)
         cv2.imwrite(str(folder / "fig9_distance.png"), img)
         plan = []
         if self.truth:
@@ -100,7 +104,7 @@ class Recorder:
             plan.append(("humanoid, estimated (cm)", 100 * p[:, 1], 100 * p[:, 2]))
         cv2.imwrite(str(folder / "floor_plan.png"),
                     line_plot(plan, title="Floor plan (world x right, y up)", xlabel="x (cm)",
-                              ylabel="y (cm)", size=(700, 700)))
+                              ylabel="y (cm)", size=(700, 700), equal_axes=True))
 
 
 def summary(rec: Recorder, goal: tuple[float, float] | None) -> tuple[str, float | None]:
