@@ -170,7 +170,8 @@ class HumanoidPose(Message):
     covariance: tuple[Row3, Row3, Row3] | None = Field(
         default=None, description="3x3 over (x m, y m, yaw rad), world frame"
     )
-    reason: str = Field(default="", description="why x, y, yaw are null, if they are")
+    reason: str = Field(default="", description=(
+        "why x, y, yaw are null, if they are; or that the pose is still ambiguous"))
     area_ratio: FiniteFloat = Field(default=0.0, ge=0.0, le=1.0)
 
 

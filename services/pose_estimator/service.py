@@ -20,7 +20,9 @@ from schemas import (
 from schemas.keys import HUMANOID_POSE, HUMANOID_POSE_FILTERED, INTRINSICS, ODOM, VERTICES
 from services.core.camera import CameraModel
 from services.core.geometry import T_floor, inv_T, quaternion_from_R
+from services.pose_estimator.branches import BranchTracker, candidate_cost, rotation_angle
 from services.pose_estimator.estimate import (
+    MarkerPose,
     estimate_marker_pose,
     humanoid_floor_pose,
     up_in_camera,
@@ -66,6 +68,7 @@ class PoseEstimator:
         self.odom_stalled = False  # the last wait for odometry ran out; none since
         self._previous: tuple[int, np.ndarray] | None = None  # (stamp_ns, R) of the last pose
         self.steady = PoseFilter(config.filter)
+        self.branches = BranchTracker()
 
     def estimate(self, msg: MarkerVertices) -> HumanoidPose:
         """Raises PoseError when the vertices give no pose (or one no message can carry)."""
@@ -82,20 +85,40 @@ class PoseEstimator:
                             f"{self.camera.width}x{self.camera.height}")
         recent = self._previous is not None and \
             abs(msg.stamp_ns - self._previous[0]) < self.config.continuity_window_s * 1e9
-        mp = estimate_marker_pose(self.camera, np.array(msg.vertices_px), self.points,
-                                  up_cam=self.up_cam, refine_steps=5 if self.config.refine else 0,
-                                  sigma_px=self.config.vertex_sigma_px,
-                                  tilt_sigma_rad=math.radians(self.config.tilt_sigma_deg),
-                                  previous_R=self._previous[1] if recent and self._previous
-                                  else None)
+        if not recent:
+            self.branches.reset()
+        v = np.array(msg.vertices_px, dtype=np.float64)
+        tilt_sigma = math.radians(self.config.tilt_sigma_deg)
+
+        def solve(previous_R: np.ndarray | None, sigma_deg: float = 10.0) -> MarkerPose:
+            return estimate_marker_pose(
+                self.camera, v, self.points, up_cam=self.up_cam,
+                refine_steps=5 if self.config.refine else 0,
+                sigma_px=self.config.vertex_sigma_px, tilt_sigma_rad=tilt_sigma,
+                previous_R=previous_R, continuity_sigma_rad=math.radians(sigma_deg))
+        mp = solve(self._previous[1] if recent and self._previous else None)
+        last = self.branches.position
+        if recent and last is not None and float(np.linalg.norm(
+                mp.T_camera_marker[:3, 3] - last)) > self.branches.max_move_m:
+            mp = solve(None)  # the marker jumped: an unrelated view owes nothing to the last
+        follow, ambiguous = self.branches.update([
+            (c[:3, :3], candidate_cost(self.camera, c, self.points, v,
+                                       self.config.vertex_sigma_px, self.up_cam, tilt_sigma))
+            for c in mp.candidates], mp.T_camera_marker[:3, 3])
+        if follow is not None and rotation_angle(follow, mp.T_camera_marker[:3, :3]) > \
+                math.radians(10.0):
+            mp = solve(follow, 3.0)  # the frame alone chose the other branch: follow the track
         T = mp.T_camera_marker
         self._previous = (msg.stamp_ns, T[:3, :3])
+        note = ("ambiguous: the mirror pose fits nearly as well; following the better track"
+                if ambiguous else "")
         marker = MarkerInCamera(position=tuple(T[:3, 3].tolist()),  # type: ignore[arg-type]
                                 quaternion=quaternion_from_R(T[:3, :3]))
         base_pose, reason = self._camera_base_pose(msg.stamp_ns)
         if base_pose is None:
             return HumanoidPose(seq=msg.seq, stamp_ns=msg.stamp_ns, marker_in_camera=marker,
-                                reprojection_px=mp.reprojection_px, reason=reason,
+                                reprojection_px=mp.reprojection_px,
+                                reason="; ".join(r for r in (reason, note) if r),
                                 area_ratio=msg.area_ratio)
         T_world_camera = T_floor(*base_pose) @ self.T_base_camera
         (x, y, yaw), cov = humanoid_floor_pose(T_world_camera, T, self.T_marker_humanoid,
@@ -103,7 +126,8 @@ class PoseEstimator:
         cov_rows = tuple(map(tuple, cov.tolist())) if cov is not None else None
         return HumanoidPose(seq=msg.seq, stamp_ns=msg.stamp_ns, x=x, y=y, yaw=yaw,
                             marker_in_camera=marker, reprojection_px=mp.reprojection_px,
-                            covariance=cov_rows, area_ratio=msg.area_ratio)  # type: ignore[arg-type]
+                            covariance=cov_rows, area_ratio=msg.area_ratio,  # type: ignore[arg-type]
+                            reason=note)
 
     def filtered(self, pose: HumanoidPose) -> HumanoidPose | None:
         """The steady counterpart of a world pose (None while the world pose is unknown)."""
