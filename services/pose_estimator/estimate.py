@@ -22,6 +22,9 @@ from services.pose_estimator.p4p import (
     raise_for,
 )
 
+#: The vertex noise (1-sigma, px) assumed unless told otherwise: the extractor's measured error.
+VERTEX_SIGMA_PX = 0.2
+
 
 @dataclass(frozen=True)
 class MarkerPose:
@@ -36,7 +39,8 @@ class MarkerPose:
 
 def estimate_marker_pose(camera: CameraModel, vertices_px: np.ndarray, marker_points: np.ndarray,
                          *, up_cam: np.ndarray | None = None, refine_steps: int = 5,
-                         sigma_px: float = 0.2, tilt_sigma_rad: float = math.radians(3.0),
+                         sigma_px: float = VERTEX_SIGMA_PX,
+                         tilt_sigma_rad: float = math.radians(3.0),
                          ambiguity: float = 4.0, previous_R: np.ndarray | None = None,
                          continuity_sigma_rad: float = math.radians(10.0)) -> MarkerPose:
     """Pose of the marker in the camera from its four pixel vertices (left, top, right,

@@ -18,7 +18,7 @@ import numpy as np
 from services.core.camera import CameraModel, undistort_px
 from services.core.geometry import T_base_camera, T_floor, inv_T, make_T, rot_y, rot_z
 from services.core.mounts import Geometry
-from services.pose_estimator.estimate import estimate_marker_pose, up_in_camera
+from services.pose_estimator.estimate import VERTEX_SIGMA_PX, estimate_marker_pose, up_in_camera
 from services.pose_estimator.p4p import ippe, posterior_cost, refine
 
 
@@ -75,21 +75,28 @@ def opencv_solver(flag: int, camera: CameraModel) -> Callable[[PoseCase], np.nda
     return solve
 
 
-def ours_solver(camera: CameraModel, refine: bool = True) -> Callable[[PoseCase], np.ndarray]:
+def ours_solver(camera: CameraModel, refine: bool = True, sigma_px: float | None = None
+                ) -> Callable[[PoseCase], np.ndarray]:
+    """Our estimator with the up vector of the view's mounts (which a deployment configures)
+    and ``sigma_px`` as the vertex noise (the service's setting), or each view's true noise
+    when None (knowledge the service does not have)."""
     pts = Geometry().marker_points()
 
     def solve(case: PoseCase) -> np.ndarray:
         return estimate_marker_pose(camera, case.vertices_px, pts, up_cam=case.up_cam,
                                     refine_steps=5 if refine else 0,
-                                    sigma_px=case.noise_px).T_camera_marker
+                                    sigma_px=case.noise_px if sigma_px is None else sigma_px
+                                    ).T_camera_marker
     return solve
+
 
 
 def compare(cases: list[PoseCase], camera: CameraModel | None = None
             ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Per method: arrays of position errors (m) and rotation errors (rad)."""
     camera = camera or CameraModel.paper()
-    methods = {"ours (IPPE + upright prior + GN)": ours_solver(camera),
+    methods = {"ours (IPPE + upright prior + GN)": ours_solver(camera, sigma_px=VERTEX_SIGMA_PX),
+               "ours, given each view's true noise": ours_solver(camera),
                "ours, analytic only": ours_solver(camera, refine=False),
                "cv2 IPPE": opencv_solver(cv2.SOLVEPNP_IPPE, camera),
                "cv2 ITERATIVE": opencv_solver(cv2.SOLVEPNP_ITERATIVE, camera),

@@ -22,6 +22,7 @@ from services.core.camera import CameraModel
 from services.core.geometry import T_floor, inv_T, quaternion_from_R
 from services.pose_estimator.branches import BranchTracker, candidate_cost, rotation_angle
 from services.pose_estimator.estimate import (
+    VERTEX_SIGMA_PX,
     MarkerPose,
     estimate_marker_pose,
     humanoid_floor_pose,
@@ -45,7 +46,8 @@ class Settings(ServiceSettings):
     static_camera_pose: tuple[float, float, float] | None = Field(
         default=None, description="x m, y m, yaw rad of a camera that does not move")
     refine: bool = True
-    vertex_sigma_px: float = Field(default=0.2, gt=0.0, description="vertex noise, 1-sigma px")
+    vertex_sigma_px: float = Field(default=VERTEX_SIGMA_PX, gt=0.0,
+                                   description="vertex noise, 1-sigma px")
     tilt_sigma_deg: float = Field(default=3.0, gt=0.0, le=45.0,
                                   description="upright prior: marker normal level within (deg)")
     filter: FilterParams = Field(default_factory=FilterParams, description=(
