@@ -11,6 +11,7 @@ import zenoh
 from schemas import HumanoidPose, IrCommand, MarkerInCamera
 from schemas.keys import HUMANOID_POSE, SIM_IR
 from services.mission_controller import controller as controller_module
+from services.runtime.bus import Bus
 from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
 from services.runtime.session import ZenohSettings, zenoh_config
@@ -66,6 +67,14 @@ def _pose(x: float) -> HumanoidPose:
                         reprojection_px=0.1)
 
 
+async def _walk_poses(bus: Bus, seconds: float) -> None:
+    """Poses far from the goal at 30 Hz for ``seconds``: the controller walks."""
+    t_end = time.monotonic() + seconds
+    while time.monotonic() < t_end:
+        bus.put(HUMANOID_POSE, _pose(0.3))
+        await asyncio.sleep(1 / 30)
+
+
 def _control_deployment(router: str):
     return parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
                              "services": {"mission_controller": {"waypoints": [[2.0, 0.0]]},
@@ -114,10 +123,7 @@ def test_an_unhandled_exception_in_the_controller_sends_stop(router, make_bus, m
         heard = bus.subscribe_stamped(SIM_IR, IrCommand, queue=256)
         task = asyncio.create_task(run_deployment(_control_deployment(router), duration=20))
         await wait_alive_async(bus.session, "mission_controller", "ir_transmitter")
-        t_end = time.monotonic() + 4.0
-        while time.monotonic() < t_end:
-            bus.put(HUMANOID_POSE, _pose(0.3))
-            await asyncio.sleep(1 / 30)
+        await _walk_poses(bus, 4.0)
         task.cancel()
         return [(t, m.command.value) for t, m in iter(heard.get_nowait, None)]
     cmds = asyncio.run(go())
@@ -150,10 +156,7 @@ def test_a_controller_that_crashes_sends_stop_and_is_restarted(router, make_bus,
         heard = bus.subscribe_stamped(SIM_IR, IrCommand, queue=256)
         task = asyncio.create_task(run_deployment(_control_deployment(router), duration=20))
         await wait_alive_async(bus.session, "mission_controller", "ir_transmitter")
-        t_end = time.monotonic() + 4.0
-        while time.monotonic() < t_end:
-            bus.put(HUMANOID_POSE, _pose(0.3))
-            await asyncio.sleep(1 / 30)
+        await _walk_poses(bus, 4.0)
         stats = await bus.get("stats/mission_controller", ServiceStats, timeout=2)
         task.cancel()
         return [m.command.value for _, m in iter(heard.get_nowait, None)], stats
