@@ -8,13 +8,13 @@ separate squares), ``chessboard:COLSxROWS:SIZE`` (OpenCV inner corners).
 from __future__ import annotations
 
 import re
-import struct
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
 import cv2
 import numpy as np
+
+from services.core.printing import PT_PER_MM, one_page_pdf, png_with_dpi
 
 
 @dataclass(frozen=True)
@@ -147,8 +147,8 @@ class GridSheet:
 
     def pdf(self) -> bytes:
         """A one-page vector PDF at exact size (1 pt = 1/72 in)."""
-        W, H = self.page_mm
-        pt = 72 / 25.4
+        _, H = self.page_mm
+        pt = PT_PER_MM
         ops = ["0 g"]
         for x, y, w, h in self.rectangles_mm():
             ops.append(f"{x * pt:.3f} {(H - y - h) * pt:.3f} {w * pt:.3f} {h * pt:.3f} re f")
@@ -156,24 +156,7 @@ class GridSheet:
         ty = H - (by + self.span_mm + self.overhang_mm + 32)
         text = self.caption().replace("(", "[").replace(")", "]")
         ops.append(f"BT /F1 11 Tf {self.origin_mm()[0] * pt:.2f} {ty * pt:.2f} Td ({text}) Tj ET")
-        content = "\n".join(ops).encode()
-        objs = [b"<< /Type /Catalog /Pages 2 0 R >>",
-                b"<< /Type /Pages /Kids [3 0 R] /Count 1 >>",
-                (f"<< /Type /Page /Parent 2 0 R /MediaBox [0 0 {W * pt:.2f} {H * pt:.2f}] "
-                 "/Contents 4 0 R /Resources << /Font << /F1 5 0 R >> >> >>").encode(),
-                b"<< /Length %d >>\nstream\n" % len(content) + content + b"\nendstream",
-                b"<< /Type /Font /Subtype /Type1 /BaseFont /Helvetica >>"]
-        out = b"%PDF-1.4\n"
-        offsets = []
-        for i, body in enumerate(objs, 1):
-            offsets.append(len(out))
-            out += b"%d 0 obj\n" % i + body + b"\nendobj\n"
-        xref = len(out)
-        out += b"xref\n0 %d\n0000000000 65535 f \n" % (len(objs) + 1)
-        out += b"".join(b"%010d 00000 n \n" % o for o in offsets)
-        out += b"trailer\n<< /Size %d /Root 1 0 R >>\nstartxref\n%d\n%%%%EOF\n" % (
-            len(objs) + 1, xref)
-        return out
+        return one_page_pdf("\n".join(ops), self.page_mm)
 
     def write(self, path: Path, dpi: float = 300.0) -> None:
         """Write PDF, SVG or PNG (with its DPI recorded) by the file's suffix."""
@@ -186,16 +169,6 @@ class GridSheet:
             ok, buf = cv2.imencode(".png", self.raster(dpi / 25.4))
             if not ok:
                 raise ValueError("PNG encoding failed")
-            path.write_bytes(_with_dpi(buf.tobytes(), dpi))
+            path.write_bytes(png_with_dpi(buf.tobytes(), dpi))
         else:
             raise ValueError(f"{path}: expected .pdf, .svg or .png")
-
-
-def _with_dpi(png: bytes, dpi: float) -> bytes:
-    """Insert a pHYs chunk so viewers and printers know the physical size."""
-    ppm = round(dpi / 0.0254)
-    data = struct.pack(">IIB", ppm, ppm, 1)
-    chunk = struct.pack(">I", len(data)) + b"pHYs" + data + struct.pack(
-        ">I", zlib.crc32(b"pHYs" + data) & 0xFFFFFFFF)
-    end_ihdr = 8 + 4 + 4 + 13 + 4
-    return png[:end_ihdr] + chunk + png[end_ihdr:]

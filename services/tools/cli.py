@@ -319,6 +319,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_sim_parser(sub)
     from services.tools.calibrate import add_calibrate_parser
     add_calibrate_parser(sub)
+    from services.tools.marker import add_marker_parser
+    add_marker_parser(sub)
     return parser
 
 

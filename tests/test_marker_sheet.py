@@ -1,0 +1,43 @@
+"""``shepherd marker sheet``: the rhombus at exact size, found by our own extractor."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from services.vertex_extractor.extractor import RhombusExtractor
+from services.vertex_extractor.sheet import MarkerSheet
+from tests.conftest import run_cli
+
+
+def test_the_printed_marker_has_the_mounts_size_and_our_extractor_finds_it(tmp_path: Path):
+    out = run_cli("marker", "sheet", "--out", str(tmp_path / "m.png"), "--dpi", "100")
+    assert out.returncode == 0, out.stderr
+    assert "rhombus 50 x 66 mm" in out.stdout and "the bar is 100 mm" in out.stdout
+    data = (tmp_path / "m.png").read_bytes()
+    assert b"pHYs" in data[:100]
+    img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
+    assert img is not None
+    px_per_mm = 100 / 25.4
+    sheet = MarkerSheet()
+    x0, y0 = ((sheet.vertices_mm().min(0) - 10) * px_per_mm).astype(int)
+    x1, y1 = ((sheet.vertices_mm().max(0) + 10) * px_per_mm).astype(int)
+    crop = np.ascontiguousarray(img[y0:y1, x0:x1])
+    det = RhombusExtractor().extract(crop)
+    assert det.found and det.vertices_px is not None, det.reason
+    left, top, right, bottom = det.vertices_px
+    assert abs(np.linalg.norm(right - left) / px_per_mm - 50.0) < 0.3
+    assert abs(np.linalg.norm(bottom - top) / px_per_mm - 66.0) < 0.3
+
+
+def test_the_pdf_draws_the_rhombus_in_magenta_at_exact_size(tmp_path: Path):
+    assert run_cli("marker", "sheet", "--out", str(tmp_path / "m.pdf")).returncode == 0
+    pdf = (tmp_path / "m.pdf").read_bytes()
+    assert pdf.startswith(b"%PDF-1.4") and b"1.0000 0.0000 1.0000 rg" in pdf
+    pt = 72 / 25.4
+    left_x = (105.0 - 25.0) * pt
+    assert f"{left_x:.3f}".encode() in pdf  # the left vertex, 25 mm left of the centre
+    bad = run_cli("marker", "sheet", "--out", str(tmp_path / "m.txt"))
+    assert bad.returncode == 2 and "expected .pdf, .svg or .png" in bad.stderr
