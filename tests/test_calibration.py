@@ -160,6 +160,7 @@ def test_no_grid_is_a_clear_detection_error():
         detect_grid(np.full((480, 640), 200, np.uint8))
 
 
+@pytest.mark.slow
 def test_intrinsics_cli_skips_bad_views_and_needs_three(tmp_path: Path):
     blank = tmp_path / "blank.png"
     cv2.imwrite(str(blank), np.full((480, 640), 128, np.uint8))

@@ -1,11 +1,14 @@
 import asyncio
 import time
 
+import pytest
+
 from schemas import CameraPose, Command, Hold, IrCommand, MissionGoal
 from schemas.keys import IR_COMMAND, MISSION_GOAL, MISSION_HOLD, ODOM
 from tests.conftest import run_cli, spawn_cli
 
 
+@pytest.mark.slow
 def test_echo_shows_messages_published_by_another_process(router, make_bus):
     echo = spawn_cli("echo", "shepherd/**", "--connect", router, "--count", "3",
                      "--duration", "20")
@@ -22,6 +25,7 @@ def test_echo_shows_messages_published_by_another_process(router, make_bus):
     assert "\x1b" not in out and "\r" not in out
 
 
+@pytest.mark.slow
 def test_typed_round_trip_between_processes(router, make_bus):
     bus = make_bus("sub")
 

@@ -269,6 +269,7 @@ def test_hot_swap_under_a_stream_of_commands_loses_none(router, make_bus):
     assert "rejected" in status[0].last_error and "port" in status[0].last_error
 
 
+@pytest.mark.slow
 def test_the_service_feeds_the_firmware_watchdog(tmp_path: Path, router):
     pty = Pty(tmp_path / "ttyRobo", firmware=True)
     dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},

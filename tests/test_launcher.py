@@ -49,6 +49,7 @@ def test_paths_in_a_deployment_are_relative_to_it(tmp_path: Path):
     assert isinstance(settings, PoseSettings) and settings.intrinsics == tmp_path / "cam.toml"
 
 
+@pytest.mark.slow
 def test_a_crashing_service_is_restarted_with_backoff(monkeypatch, router):
     monkeypatch.setitem(registry.SERVICES, "crashy", "tests.helpers.crashy")
     crashy.STARTS.clear()
@@ -104,6 +105,7 @@ def _wait(pred, timeout: float) -> bool:
     return False
 
 
+@pytest.mark.slow
 def test_killed_service_process_loses_its_token_and_is_restarted(tmp_path: Path, router,
                                                                  sessions):
     path = tmp_path / "dep.toml"

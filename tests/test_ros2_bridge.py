@@ -197,6 +197,7 @@ def test_ros_odometry_and_goals_become_shepherd_messages(router, make_bus, sessi
     assert mission.waypoints == [(0.9, -0.1)]
 
 
+@pytest.mark.slow
 def test_the_camera_image_and_its_info_reach_ros_rate_limited(router, make_bus, sessions):
     from services.core.camera import CameraModel
     from services.runtime.frames import encode_frame

@@ -204,6 +204,7 @@ def test_three_jpeg_bombs_cost_little_memory_and_poses_keep_flowing(router: str,
     assert grown < 300 and flowing_s < 2.0
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("skew_s", [-0.5, 0.5])
 def test_a_clock_skew_between_hosts_neither_freezes_nor_hides_a_stale_pose(
         router: str, make_bus, skew_s: float):
@@ -265,6 +266,7 @@ def _recording(path: Path) -> None:
                       "shepherd/camera/goal"]),
     (("--to-namespace", "offline"), ["offline/camera/odom"]),
 ])
+@pytest.mark.slow
 def test_replay_leaves_out_actuation_unless_asked_and_can_change_namespace(
         tmp_path: Path, router: str, sessions, flags: tuple[str, ...], expected: list[str]):
     from tests.conftest import run_cli

@@ -240,6 +240,7 @@ def test_odometry_comes_at_its_own_rate_late_and_biased():
     assert all(s.x == pytest.approx(0.01) for _, s in released)
 
 
+@pytest.mark.slow
 def test_the_shipped_calibration_of_the_simulated_camera_is_ours_and_close_to_the_truth():
     from services.data import SIM_CAMERA
     from services.tools.sim_calibration import calibrate_simulated
