@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from services.core.printing import PT_PER_MM, one_page_pdf, png_with_dpi
+from services.core.printing import PT_PER_MM, one_page_pdf, write_sheet
 
 
 @dataclass(frozen=True)
@@ -160,15 +160,4 @@ class GridSheet:
 
     def write(self, path: Path, dpi: float = 300.0) -> None:
         """Write PDF, SVG or PNG (with its DPI recorded) by the file's suffix."""
-        suffix = path.suffix.lower()
-        if suffix == ".pdf":
-            path.write_bytes(self.pdf())
-        elif suffix == ".svg":
-            path.write_text(self.svg())
-        elif suffix == ".png":
-            ok, buf = cv2.imencode(".png", self.raster(dpi / 25.4))
-            if not ok:
-                raise ValueError("PNG encoding failed")
-            path.write_bytes(png_with_dpi(buf.tobytes(), dpi))
-        else:
-            raise ValueError(f"{path}: expected .pdf, .svg or .png")
+        write_sheet(path, dpi, self.pdf, self.svg, self.raster)

@@ -4,6 +4,11 @@ from __future__ import annotations
 
 import struct
 import zlib
+from collections.abc import Callable
+from pathlib import Path
+
+import cv2
+import numpy as np
 
 PT_PER_MM = 72 / 25.4
 
@@ -41,3 +46,21 @@ def png_with_dpi(png: bytes, dpi: float) -> bytes:
         ">I", zlib.crc32(b"pHYs" + data) & 0xFFFFFFFF)
     end_ihdr = 8 + 4 + 4 + 13 + 4
     return png[:end_ihdr] + chunk + png[end_ihdr:]
+
+
+def write_sheet(path: Path, dpi: float, pdf: Callable[[], bytes], svg: Callable[[], str],
+                raster: Callable[[float], np.ndarray]) -> None:
+    """Write a sheet as PDF, SVG or PNG (``raster(px_per_mm)``, its DPI recorded) by the
+    file's suffix; raises ValueError for any other."""
+    suffix = path.suffix.lower()
+    if suffix == ".pdf":
+        path.write_bytes(pdf())
+    elif suffix == ".svg":
+        path.write_text(svg())
+    elif suffix == ".png":
+        ok, buf = cv2.imencode(".png", raster(dpi / 25.4))
+        if not ok:
+            raise ValueError("PNG encoding failed")
+        path.write_bytes(png_with_dpi(buf.tobytes(), dpi))
+    else:
+        raise ValueError(f"{path}: expected .pdf, .svg or .png")
