@@ -15,6 +15,7 @@ from services.runtime.launcher import run_deployment
 from services.sim.camera_robot import CameraRobot, CameraRobotParams
 from services.sim.humanoid import Humanoid, HumanoidParams
 from services.sim.render import RenderStyle, coverage_mask, render_view
+from services.sim.webcam import srgb_to_linear
 from services.sim.scenes import marker_pose, random_views
 from tests.conftest import run_cli
 
@@ -55,9 +56,9 @@ def test_rasterised_area_matches_polygon_area(distance):
     r = render_view(cam, T, marker_points_m=g.marker_points(), style=style)
     x, y = r.vertices_px[:, 0], r.vertices_px[:, 1]
     polygon = 0.5 * abs(x @ np.roll(y, -1) - y @ np.roll(x, -1))
-    # the image itself: green is 0 everywhere, (R + B) / 2 is 255 x coverage
-    img = r.image.astype(float)
-    measured = (img[..., 0] + img[..., 2]).sum() / (2 * 255)
+    # the image itself, in linear light: green is 0 everywhere, (R + B) / 2 is coverage
+    img = srgb_to_linear(r.image / 255.0)
+    measured = (img[..., 0] + img[..., 2]).sum() / 2
     assert abs(measured - polygon) / polygon < 0.005
     assert abs(r.coverage_area_px - polygon) / polygon < 0.005
 

@@ -4,6 +4,12 @@ The rhombus is drawn with area-exact anti-aliasing up to 1/256 px² (16 x 16 sup
 its bounding box, then area averaging), through the camera's full distortion model (edges are
 densely sampled before projection, so they bend as a real lens bends them). A render is
 deterministic given its style's seed and the frame index.
+
+Two cameras: the ideal one (a style without ``camera``, or ``camera.ideal``) draws in 8-bit
+sRGB values (the marker's edge pixels mixed in linear light, as light mixes) and adds Gaussian
+noise; the webcam (``webcam.py``) composes the scene in linear
+light (photographed walls and floor when ``photos``, the humanoid's shaded plastic body, the
+marker's ink) and passes it through the camera's stages.
 """
 
 from __future__ import annotations
@@ -15,8 +21,15 @@ import cv2
 import numpy as np
 
 from services.core.camera import CameraModel
+from services.sim import textures
+from services.sim.webcam import WebcamParams, expose, linear_to_srgb, srgb_to_linear
 
 MAGENTA_BGR = (255, 0, 255)
+INKS_BGR = {  # the marker as printed (sRGB, BGR order)
+    "nominal": MAGENTA_BGR,
+    "process": (140, 0, 236),   # what a CMYK printer makes of "magenta" (0/100/0/0)
+    "bluish": (206, 10, 180),   # a bluish-magenta card
+}
 BODY_BGR = (58, 62, 66)
 SUPERSAMPLE = 16
 SHIFT = 4  # fillPoly fractional bits inside the supersampled grid
@@ -36,6 +49,8 @@ class RenderStyle:
     marker_bgr: tuple[int, int, int] = MAGENTA_BGR
     draw_body: bool = True
     background_level: int | None = None  # flat grey background instead of clutter
+    camera: WebcamParams | None = None   # the webcam; None: the ideal camera
+    photos: bool = False                 # webcam scenes: photographed walls and floor
 
 
 @dataclass(frozen=True)
@@ -144,32 +159,17 @@ def render_view(camera: CameraModel, T_camera_marker: np.ndarray, *,
         style: look of the frame; ``frame_index`` varies the noise deterministically.
     """
     style = style or RenderStyle()
+    if style.camera is not None and not style.camera.ideal:
+        return _render_webcam(camera, T_camera_marker, marker_points_m, T_camera_humanoid, style,
+                              frame_index, draw_marker)
     W, H = camera.width, camera.height
     img = _background(W, H, style.seed, style.clutter, style.distractors,
                       style.background_level).astype(np.float32)
     if style.draw_body and T_camera_humanoid is not None:
-        for corners in _body_corners(T_camera_humanoid):
-            if np.all(corners[:, 2] > 0.02):
-                hull = cv2.convexHull(camera.project(corners).astype(np.float32))
-                cv2.fillConvexPoly(img, np.round(hull * 16).astype(np.int32), BODY_BGR,
-                                   cv2.LINE_AA, 4)
-    verts_cam = (T_camera_marker[:3, :3] @ marker_points_m.T).T + T_camera_marker[:3, 3]
-    normal = T_camera_marker[:3, 2]
-    facing = float(normal @ T_camera_marker[:3, 3]) < 0 and bool(np.all(verts_cam[:, 2] > 0.01))
-    vertices_px = camera.project(verts_cam) if np.all(verts_cam[:, 2] > 0.01) else None
-    area = 0.0
-    if draw_marker and facing and vertices_px is not None:
-        boundary = camera.project(_edge_samples(verts_cam, 48))
-        lo = np.floor(boundary.min(0) - 1).astype(int)
-        hi = np.ceil(boundary.max(0) + 1).astype(int)
-        x0, y0 = max(lo[0], 0), max(lo[1], 0)
-        x1, y1 = min(hi[0], W - 1), min(hi[1], H - 1)
-        if x1 > x0 and y1 > y0:
-            cov = coverage_mask(boundary, x0, y0, x1 - x0 + 1, y1 - y0 + 1)[..., None]
-            roi = img[y0:y1 + 1, x0:x1 + 1]
-            roi *= 1.0 - cov
-            roi += cov * np.array(style.marker_bgr, np.float32)
-            area = float(cov.sum())
+        _draw_body(img, camera, T_camera_humanoid, np.array(BODY_BGR, np.float32), False)
+    vertices_px, facing, area = _draw_marker(img, camera, T_camera_marker, marker_points_m,
+                                             np.array(style.marker_bgr, np.float32),
+                                             draw_marker, srgb=True)
     if style.brightness != 1.0:
         img *= style.brightness
     if style.motion_blur_px > 0.5:
@@ -181,9 +181,104 @@ def render_view(camera: CameraModel, T_camera_marker: np.ndarray, *,
         cv2.randn(noise, 0.0, style.noise_sigma)
         img += noise
     image = np.clip(img + 0.5, 0, 255).astype(np.uint8)
+    return _rendered(image, vertices_px, T_camera_marker, facing, draw_marker, area)
+
+
+def _rendered(image: np.ndarray, vertices_px: np.ndarray | None, T_camera_marker: np.ndarray,
+              facing: bool, draw_marker: bool, area: float) -> Rendered:
+    H, W = image.shape[:2]
     visible = (facing and vertices_px is not None and draw_marker
                and bool(np.all((vertices_px >= 0) & (vertices_px <= [W - 1, H - 1]))))
     return Rendered(image, vertices_px, T_camera_marker, visible, area)
+
+
+def _draw_marker(img: np.ndarray, camera: CameraModel, T_camera_marker: np.ndarray,
+                 marker_points_m: np.ndarray, colour: np.ndarray, draw: bool,
+                 srgb: bool = False) -> tuple[np.ndarray | None, bool, float]:
+    """Composite the rhombus into ``img`` (float32, in place) by its exact pixel coverage, in
+    linear light (``srgb``: ``img`` and ``colour`` hold sRGB values 0-255, converted for the
+    mix and back). Returns (true vertices px or None, facing the camera, drawn area px)."""
+    H, W = img.shape[:2]
+    verts_cam = (T_camera_marker[:3, :3] @ marker_points_m.T).T + T_camera_marker[:3, 3]
+    normal = T_camera_marker[:3, 2]
+    in_front = bool(np.all(verts_cam[:, 2] > 0.01))
+    facing = float(normal @ T_camera_marker[:3, 3]) < 0 and in_front
+    vertices_px = camera.project(verts_cam) if in_front else None
+    area = 0.0
+    if draw and facing and vertices_px is not None:
+        boundary = camera.project(_edge_samples(verts_cam, 48))
+        lo = np.floor(boundary.min(0) - 1).astype(int)
+        hi = np.ceil(boundary.max(0) + 1).astype(int)
+        x0, y0 = max(lo[0], 0), max(lo[1], 0)
+        x1, y1 = min(hi[0], W - 1), min(hi[1], H - 1)
+        if x1 > x0 and y1 > y0:
+            cov = coverage_mask(boundary, x0, y0, x1 - x0 + 1, y1 - y0 + 1)[..., None]
+            roi = img[y0:y1 + 1, x0:x1 + 1]
+            if srgb:
+                mixed = (srgb_to_linear(roi / 255.0) * (1.0 - cov)
+                         + cov * srgb_to_linear(colour / 255.0))
+                roi[...] = 255.0 * linear_to_srgb(mixed)
+            else:
+                roi *= 1.0 - cov
+                roi += cov * colour
+            area = float(cov.sum())
+    return vertices_px, facing, area
+
+
+def _draw_body(img: np.ndarray, camera: CameraModel, T_camera_humanoid: np.ndarray,
+               colour: np.ndarray, shaded: bool) -> None:
+    """The humanoid's torso and legs as boxes (float32 image, in place); ``shaded``: plastic
+    lit from above (brighter at the top, a highlight band)."""
+    for corners in _body_corners(T_camera_humanoid):
+        if not np.all(corners[:, 2] > 0.02):
+            continue
+        hull = cv2.convexHull(camera.project(corners).astype(np.float32))
+        if not shaded:
+            cv2.fillConvexPoly(img, np.round(hull * 16).astype(np.int32), colour.tolist(),
+                               cv2.LINE_AA, 4)
+            continue
+        x, y, w, h = cv2.boundingRect(np.round(hull).astype(np.int32))
+        x0, y0 = max(x - 1, 0), max(y - 1, 0)
+        x1, y1 = min(x + w + 1, img.shape[1]), min(y + h + 1, img.shape[0])
+        if x1 <= x0 or y1 <= y0:
+            continue
+        cov = np.zeros((y1 - y0, x1 - x0), np.float32)
+        cv2.fillConvexPoly(cov, np.round((hull.reshape(-1, 2) - [x0, y0]) * 16).astype(np.int32),
+                           1.0, cv2.LINE_AA, 4)
+        cov = cov[..., None]
+        t = np.linspace(0.0, 1.0, y1 - y0, dtype=np.float32)[:, None, None]
+        u = np.linspace(-1.0, 1.0, x1 - x0, dtype=np.float32)[None, :, None]
+        shade = (1.25 - 0.5 * t) * (1.0 - 0.25 * u * u) + 0.35 * np.exp(-((u - 0.3) / 0.15) ** 2)
+        roi = img[y0:y1, x0:x1]
+        roi *= 1.0 - cov
+        roi += cov * colour * shade
+
+
+def _render_webcam(camera: CameraModel, T_camera_marker: np.ndarray,
+                   marker_points_m: np.ndarray, T_camera_humanoid: np.ndarray | None,
+                   style: RenderStyle, frame_index: int, draw_marker: bool) -> Rendered:
+    """The scene in linear light through the webcam (``style.camera``)."""
+    assert style.camera is not None
+    W, H = camera.width, camera.height
+    if style.photos:
+        img = textures.photo_scene(W, H, style.seed).copy()
+    else:
+        bg = _background(W, H, style.seed, style.clutter, style.distractors,
+                         style.background_level)
+        img = srgb_to_linear(bg / 255.0).astype(np.float32)
+    if style.draw_body and T_camera_humanoid is not None:
+        _draw_body(img, camera, T_camera_humanoid,
+                   srgb_to_linear(np.array(BODY_BGR) / 255.0).astype(np.float32), True)
+    ink = srgb_to_linear(np.array(style.marker_bgr) / 255.0).astype(np.float32)
+    vertices_px, facing, area = _draw_marker(img, camera, T_camera_marker, marker_points_m, ink,
+                                             draw_marker)
+    img *= style.brightness
+    if style.motion_blur_px > 0.5:
+        img = cv2.filter2D(img, -1, _blur_kernel(style.motion_blur_px,
+                                                 style.motion_blur_angle_deg))
+    rng = np.random.default_rng([style.seed, frame_index])
+    image = expose(img, style.camera, rng)
+    return _rendered(image, vertices_px, T_camera_marker, facing, draw_marker, area)
 
 
 @lru_cache(maxsize=16)

@@ -12,6 +12,7 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable
+from typing import Literal
 
 from pydantic import Field
 
@@ -27,7 +28,8 @@ from services.runtime.context import ServiceContext
 from services.runtime.frames import encode_frame
 from services.sim.camera_robot import CameraRobotParams
 from services.sim.humanoid import HumanoidParams
-from services.sim.render import RenderStyle
+from services.sim.render import INKS_BGR, RenderStyle
+from services.sim.webcam import WebcamParams
 from services.sim.state import SimWorld
 
 
@@ -45,7 +47,13 @@ class Settings(ServiceSettings):
                                    description="slow lighting change, fraction")
     motion_blur_px: float = Field(default=0.0, ge=0.0)
     clutter: bool = True
-    jpeg_quality: int | None = Field(default=None, ge=10, le=100)
+    jpeg_quality: int | None = Field(default=None, ge=10, le=100,
+                                     description="transport encoding of camera/frame")
+    camera: WebcamParams = Field(default_factory=WebcamParams,
+                                 description="the simulated webcam; ideal = true: ideal renders")
+    photos: bool = Field(default=True, description="photographed walls and floor (webcam)")
+    ink: Literal["nominal", "process", "bluish"] = Field(
+        default="nominal", description="the marker's printed ink (render.INKS_BGR)")
     realtime: bool = Field(default=True, description="pace frames to the wall clock")
     speedup: float = Field(default=1.0, gt=0.0, description="simulated s per wall-clock s")
 
@@ -54,7 +62,9 @@ def build_world(config: Settings, geometry: Geometry, world: World) -> SimWorld:
     camera = CameraModel.load(config.intrinsics) if config.intrinsics else CameraModel.paper()
     style = RenderStyle(seed=config.seed, brightness=config.brightness,
                         noise_sigma=config.noise_sigma, motion_blur_px=config.motion_blur_px,
-                        clutter=config.clutter, distractors=config.clutter)
+                        clutter=config.clutter, distractors=config.clutter,
+                        marker_bgr=INKS_BGR[config.ink], camera=config.camera,
+                        photos=config.photos)
     return SimWorld(camera=camera, geometry=geometry, world=world,
                     humanoid_start=config.humanoid_start, camera_start=config.camera_start,
                     humanoid=config.humanoid, camera_robot=config.camera_robot, style=style,
@@ -105,7 +115,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
             gain = 1.0 + config.brightness_wave * math.sin(2 * math.pi * sim.time_s / 7.0)
             sim.style = RenderStyle(**{**base_style.__dict__,
                                        "brightness": base_style.brightness * gain})
-        rendered = sim.render()
+        rendered = await asyncio.to_thread(sim.render)  # numpy and OpenCV release the GIL
         stamp = time.time_ns()
         # odometry on its own rate, published its latency after its stamp
         for sample in odometry.tick(sim.time_s, stamp, sim.robot.odometry):

@@ -1,56 +1,135 @@
-"""The per-pixel colour test for the magenta marker (BGR images), compiled with numba.
+"""What the marker looks like to the camera: the per-pixel colour test and the sub-pixel
+score (BGR uint8 images), compiled with numba.
 
-``score = (R + B) / 2 - G`` is linear in how much of a pixel the marker covers, so it gives the
-sub-pixel edge position; the interior test adds chroma ratios so that pink, red, blue and
-purple things are not taken for the marker, at any brightness.
+Both work in linear light: a 256-entry table undoes the camera's transfer curve (sRGB by
+default), because light mixes linearly across an edge and the sRGB values of a mixed pixel do
+not. The interior test is an ellipse in the chromaticity plane (r, g) = (R, G) / (R + G + B),
+which does not depend on brightness; the score is the pixel's colour along the marker's
+chroma direction (orthogonal to grey; measured on each marker's own interior), linear in how
+much of the pixel the marker covers.
 """
 
 from __future__ import annotations
 
+import math
+from functools import cached_property
+from typing import Literal
+
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field
+from pydantic import BaseModel, ConfigDict, Field, model_validator
 
 from services.core.jit import njit
 
+# Model vector layout for the kernels: ellipse centre (r, g), inverse shape a, b, c
+# (q = a dr² + 2 b dr dg + c dg² <= 1 inside), least R + G + B (x 255).
+R0, G0, QA, QB, QC, MIN_SUM = range(6)
+
 
 class ColourModel(BaseModel):
-    """Interior when: (R + B) / 2 - G > ``min_score``, G < ``green_ratio`` min(R, B),
-    |R - B| < ``balance`` max(R, B) and min(R, B) > ``min_level`` (grey levels 0-255)."""
+    """The marker's colour in linear-light chromaticity (r, g) = (R, G) / (R + G + B).
+
+    A pixel is marker when its chromaticity lies within ``max_distance`` of ``centre`` in the
+    metric of ``covariance`` (Mahalanobis) and its R + G + B (linear, 0-3) is at least
+    ``min_sum``. The default covers printed inks from nominal magenta (255, 0, 255) to process
+    magenta (about (236, 0, 140)) and bluish magenta cards under white-balanced light, and
+    leaves out pinks, purples and reds with any green in them (hot pink, salmon, lilac).
+    ``shepherd marker learn`` fits one to a user's own marker and camera.
+    """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
-    min_score: float = Field(default=60.0, gt=0)
-    green_ratio: float = Field(default=0.35, gt=0, le=1)
-    balance: float = Field(default=0.2, gt=0, le=1)
-    min_level: int = Field(default=50, ge=0, le=255)
+    centre: tuple[float, float] = (0.615, 0.02)
+    covariance: tuple[tuple[float, float], tuple[float, float]] = ((0.0064, 0.0),
+                                                                    (0.0, 0.0004))
+    max_distance: float = Field(default=3.0, gt=0.0, le=20.0)
+    min_sum: float = Field(default=0.05, ge=0.0, le=3.0,
+                           description="least R + G + B in linear light (0-3)")
+    transfer: Literal["srgb", "gamma", "linear"] = Field(
+        default="srgb", description="the camera's transfer curve, undone before the test")
+    gamma: float = Field(default=2.2, gt=0.5, le=4.0)
 
-    @property
-    def args(self) -> tuple[float, float, float, float]:
-        """The thresholds in the order the compiled kernels take them."""
-        return (float(self.min_score), float(self.green_ratio), float(self.balance),
-                float(self.min_level))
+    @model_validator(mode="after")
+    def _check(self) -> ColourModel:
+        (a, b), (b2, c) = self.covariance
+        if abs(b - b2) > 1e-12 or a <= 0 or c <= 0 or a * c - b * b <= 0:
+            raise ValueError("covariance must be a symmetric positive definite 2 x 2 matrix")
+        r, g = self.centre
+        if not (0.0 <= r <= 1.0 and -0.1 <= g <= 1.0 and r + g <= 1.0):
+            raise ValueError(f"centre {self.centre} is not a chromaticity (r, g >= 0, r + g <= 1)")
+        return self
+
+    @cached_property
+    def lut(self) -> np.ndarray:
+        """Linear light x 255 of each 8-bit value (float64, 256)."""
+        v = np.arange(256) / 255.0
+        if self.transfer == "srgb":
+            lin = np.where(v <= 0.04045, v / 12.92, ((v + 0.055) / 1.055) ** 2.4)
+        elif self.transfer == "gamma":
+            lin = v ** self.gamma
+        else:
+            lin = v
+        return np.ascontiguousarray(lin * 255.0)
+
+    @cached_property
+    def vector(self) -> np.ndarray:
+        """The model as the kernels take it (see the layout constants)."""
+        (a, b), (_, c) = self.covariance
+        det = a * c - b * b
+        k = 1.0 / self.max_distance ** 2
+        r, g = self.centre
+        return np.array([r, g, k * c / det, -k * b / det, k * a / det, self.min_sum * 255.0])
+
+    def chroma_distance(self, bgr: np.ndarray) -> np.ndarray:
+        """Mahalanobis distance of each pixel's chromaticity from the centre (for tools)."""
+        lin = self.lut[np.asarray(bgr, np.uint8)]
+        s = np.maximum(lin.sum(-1), 1e-9)
+        m = self.vector
+        dr, dg = lin[..., 2] / s - m[R0], lin[..., 1] / s - m[G0]
+        q = m[QA] * dr * dr + 2 * m[QB] * dr * dg + m[QC] * dg * dg
+        return np.sqrt(np.maximum(q, 0.0)) * self.max_distance
+
+    def mask(self, bgr: np.ndarray) -> np.ndarray:
+        """The interior test on a whole image (bool H x W; for tools, not the hot path)."""
+        lin = self.lut[np.asarray(bgr, np.uint8)]
+        return (lin.sum(-1) >= self.vector[MIN_SUM]) & (self.chroma_distance(bgr)
+                                                        <= self.max_distance)
 
 
 @njit(inline="always")
-def is_marker(img: np.ndarray, y: int, x: int, min_score: float, green_ratio: float,
-              balance: float, min_level: float) -> bool:
+def is_marker(img: np.ndarray, y: int, x: int, lut: np.ndarray, m: np.ndarray) -> bool:
     """The interior test of pixel (x, y) of a BGR uint8 image."""
-    b = float(img[y, x, 0])
-    g = float(img[y, x, 1])
-    r = float(img[y, x, 2])
-    lo = min(r, b)
-    return (lo > min_level and 0.5 * (r + b) - g > min_score and g < green_ratio * lo
-            and abs(r - b) < balance * max(r, b))
+    b = lut[img[y, x, 0]]
+    g = lut[img[y, x, 1]]
+    r = lut[img[y, x, 2]]
+    s = r + g + b
+    if s < m[MIN_SUM] or s <= 0.0:
+        return False
+    inv = 1.0 / s
+    dr = r * inv - m[R0]
+    dg = g * inv - m[G0]
+    return m[QA] * dr * dr + 2.0 * m[QB] * dr * dg + m[QC] * dg * dg <= 1.0
 
 
 @njit(inline="always")
-def score(img: np.ndarray, y: int, x: int) -> float:
-    """(R + B) / 2 - G of pixel (x, y): linear in the marker's coverage of the pixel."""
-    return 0.5 * (float(img[y, x, 0]) + float(img[y, x, 2])) - float(img[y, x, 1])
+def score(img: np.ndarray, y: int, x: int, lut: np.ndarray, w: np.ndarray) -> float:
+    """Pixel (x, y)'s linear colour (x 255) along the chroma direction ``w`` (B, G, R weights,
+    orthogonal to grey): linear in the marker's coverage of the pixel, 0 on grey."""
+    return w[0] * lut[img[y, x, 0]] + w[1] * lut[img[y, x, 1]] + w[2] * lut[img[y, x, 2]]
+
+
+@njit(inline="always")
+def chroma_direction(b: float, g: float, r: float) -> np.ndarray:
+    """Unit B, G, R weights along the chroma of colour (b, g, r), orthogonal to grey."""
+    mean = (b + g + r) / 3.0
+    w = np.array([b - mean, g - mean, r - mean])
+    norm = math.sqrt(w[0] * w[0] + w[1] * w[1] + w[2] * w[2])
+    if norm > 1e-9:
+        w /= norm
+    return w
 
 
 @njit()
-def grid_mask(img: np.ndarray, step: int, offset: int, min_score: float, green_ratio: float,
-              balance: float, min_level: float) -> tuple[np.ndarray, int]:
+def grid_mask(img: np.ndarray, step: int, offset: int, lut: np.ndarray, m: np.ndarray
+              ) -> tuple[np.ndarray, int]:
     """Interior mask on the grid (offset + i step, offset + j step), and its count."""
     h = (img.shape[0] - offset + step - 1) // step
     w = (img.shape[1] - offset + step - 1) // step
@@ -59,7 +138,16 @@ def grid_mask(img: np.ndarray, step: int, offset: int, min_score: float, green_r
     for i in range(h):
         y = offset + i * step
         for j in range(w):
-            if is_marker(img, y, offset + j * step, min_score, green_ratio, balance, min_level):
+            if is_marker(img, y, offset + j * step, lut, m):
                 out[i, j] = 255
                 count += 1
     return out, count
+
+
+def ellipse_axes(model: ColourModel) -> tuple[float, float, float]:
+    """Half-axes of the acceptance ellipse in chromaticity units and its angle (deg)."""
+    cov = np.array(model.covariance)
+    vals, vecs = np.linalg.eigh(cov)
+    k = model.max_distance
+    angle = math.degrees(math.atan2(vecs[1, 1], vecs[0, 1]))
+    return k * math.sqrt(vals[1]), k * math.sqrt(vals[0]), angle

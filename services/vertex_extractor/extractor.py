@@ -27,6 +27,7 @@ the marker's horizontal diagonal must be the wider one within about 35 degrees o
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Literal
 
 import cv2
 import numpy as np
@@ -51,6 +52,13 @@ class ExtractorParams(BaseModel):
     max_residual_px: float = Field(default=0.8, gt=0)
     min_points_per_edge: int = Field(default=4, ge=2)
     min_angle_deg: float = Field(default=25.0, gt=0, lt=90)
+    max_candidates: int = Field(default=6, ge=1, le=64,
+                                description="blobs tried, largest first, on a cold search")
+    edge: Literal["local", "global", "crossing"] = Field(
+        default="local", description="sub-pixel edge method (scan.py; chosen by the bench)")
+
+
+_EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING}
 
 
 @dataclass(frozen=True)
@@ -91,43 +99,68 @@ class RhombusExtractor:
             det = self._extract_from(image, self._seed, tracked=True)
             if det.found:
                 return det
-        seed_or_reason = self._coarse_search(image)
-        if isinstance(seed_or_reason, str):
+        seeds = self._coarse_search(image)
+        if isinstance(seeds, str):
             self._seed = None
-            return _miss(seed_or_reason)
-        return self._extract_from(image, seed_or_reason, tracked=False)
+            return _miss(seeds)
+        return self._first_marker(image, seeds)
 
-    def _coarse_search(self, image: np.ndarray) -> tuple[int, int, int] | str:
-        """A seed (x, y, radius px) on the one marker-coloured blob of a 1-in-s pixel grid."""
+    def _first_marker(self, image: np.ndarray, seeds: list[tuple[int, int, int, int]]
+                      ) -> Detection:
+        """The one blob, largest first, that passes as the marker. A second blob of similar
+        size (>= 40 % of the found one's cells) that passes too makes the frame ambiguous."""
+        first: Detection | None = None
+        for i, (x, y, radius, cells) in enumerate(seeds):
+            det = self._extract_from(image, (x, y, radius), tracked=False)
+            if not det.found:
+                first = first or det
+                continue
+            seed = self._seed
+            for x2, y2, r2, cells2 in seeds[i + 1:]:
+                if cells2 < 0.4 * cells:
+                    break
+                if self._extract_from(image, (x2, y2, r2), tracked=False).found:
+                    self._seed = None
+                    return _miss("two or more marker-like rhombi of similar size (ambiguous)")
+            self._seed = seed
+            return det
+        self._seed = None
+        assert first is not None
+        return first
+
+    def _coarse_search(self, image: np.ndarray) -> list[tuple[int, int, int, int]] | str:
+        """Seeds (x, y, radius px, grid cells) on the marker-coloured blobs of a 1-in-s pixel
+        grid, largest first (at most ``max_candidates``)."""
         s = self.params.coarse_step
-        small, count = grid_mask(image, s, s // 2, *self.params.colour.args)
+        small, count = grid_mask(image, s, s // 2, self.params.colour.lut,
+                                 self.params.colour.vector)
         if count == 0:
             return "no marker-coloured pixels"
         if count > 0.5 * small.size:
             return "most of the frame is marker-coloured"
         _, labels, stats, centroids = cv2.connectedComponentsWithStats(small, connectivity=8)
         areas = stats[1:, cv2.CC_STAT_AREA]
-        order = np.argsort(areas)[::-1]
-        best = int(order[0]) + 1
-        if len(order) > 1 and areas[order[1]] >= max(3, 0.4 * areas[order[0]]):
-            return "two or more marker-coloured blobs of similar size (ambiguous)"
-        cx, cy = (int(c + 0.5) for c in centroids[best])
-        if labels[cy, cx] != best:  # not convex: any cell of the blob
-            ys, xs = np.nonzero(labels == best)
-            cx, cy = int(xs[len(xs) // 2]), int(ys[len(ys) // 2])
-        return s // 2 + cx * s, s // 2 + cy * s, s
+        seeds = []
+        for k in np.argsort(areas)[::-1][:self.params.max_candidates]:
+            label = int(k) + 1
+            cx, cy = (int(c + 0.5) for c in centroids[label])
+            if labels[cy, cx] != label:  # not convex: any cell of the blob
+                ys, xs = np.nonzero(labels == label)
+                cx, cy = int(xs[len(xs) // 2]), int(ys[len(ys) // 2])
+            seeds.append((s // 2 + cx * s, s // 2 + cy * s, s, int(areas[k])))
+        return seeds
 
     def _extract_from(self, image: np.ndarray, seed: tuple[int, int, int],
                       tracked: bool) -> Detection:
         p = self.params
         H, W = image.shape[:2]
-        colour = p.colour.args
-        sx, sy = scan.find_seed(image, seed[0], seed[1], seed[2], *colour)
+        lut, model = p.colour.lut, p.colour.vector
+        sx, sy = scan.find_seed(image, seed[0], seed[1], seed[2], lut, model)
         if sx < 0:
             self._seed = None
             return _miss("no marker-coloured pixels at the seed", tracked)
         status, area, n, contrast, u, d = scan.scan(image, sx, sy, p.min_len_px, p.dx,
-                                                    p.window, *colour)
+                                                    p.window, lut, model, _EDGES[p.edge])
         det = self._judge(status, area, n, contrast, u, d, (W, H), tracked)
         if det.found:
             v = det.vertices_px

@@ -16,18 +16,18 @@ from __future__ import annotations
 import numpy as np
 
 from services.core.jit import njit
-from services.vertex_extractor.colour import is_marker, score
+from services.vertex_extractor.colour import chroma_direction, is_marker, score
 
 OK, BORDER, LOW_CONTRAST = 0, 1, 2
 
 
 @njit(inline="always")
-def _run_up(img, x, y, c0, c1, c2, c3):  # type: ignore[no-untyped-def]
+def _run_up(img, x, y, lut, m):  # type: ignore[no-untyped-def]
     """Topmost row of the run of marker pixels containing (x, y), bridging 1-px gaps."""
     while y > 0:
-        if is_marker(img, y - 1, x, c0, c1, c2, c3):
+        if is_marker(img, y - 1, x, lut, m):
             y -= 1
-        elif y > 1 and is_marker(img, y - 2, x, c0, c1, c2, c3):
+        elif y > 1 and is_marker(img, y - 2, x, lut, m):
             y -= 2
         else:
             break
@@ -35,13 +35,13 @@ def _run_up(img, x, y, c0, c1, c2, c3):  # type: ignore[no-untyped-def]
 
 
 @njit(inline="always")
-def _run_down(img, x, y, c0, c1, c2, c3):  # type: ignore[no-untyped-def]
+def _run_down(img, x, y, lut, m):  # type: ignore[no-untyped-def]
     """Bottom row of the run of marker pixels containing (x, y), bridging 1-px gaps."""
     last = img.shape[0] - 1
     while y < last:
-        if is_marker(img, y + 1, x, c0, c1, c2, c3):
+        if is_marker(img, y + 1, x, lut, m):
             y += 1
-        elif y < last - 1 and is_marker(img, y + 2, x, c0, c1, c2, c3):
+        elif y < last - 1 and is_marker(img, y + 2, x, lut, m):
             y += 2
         else:
             break
@@ -49,33 +49,33 @@ def _run_down(img, x, y, c0, c1, c2, c3):  # type: ignore[no-untyped-def]
 
 
 @njit(inline="always")
-def _column(img, x, prev_top, prev_bottom, c0, c1, c2, c3):  # type: ignore[no-untyped-def]
+def _column(img, x, prev_top, prev_bottom, lut, m):  # type: ignore[no-untyped-def]
     """(top, bottom) rows of column x's run overlapping the previous column's run
     [prev_top, prev_bottom]; (-1, -1) when the column has none."""
     y = prev_top
-    if is_marker(img, y, x, c0, c1, c2, c3):
-        top = _run_up(img, x, y, c0, c1, c2, c3)
+    if is_marker(img, y, x, lut, m):
+        top = _run_up(img, x, y, lut, m)
     else:
         y += 1
-        while y <= prev_bottom and not is_marker(img, y, x, c0, c1, c2, c3):
+        while y <= prev_bottom and not is_marker(img, y, x, lut, m):
             y += 1
         if y > prev_bottom:
             return -1, -1
         top = y
     y = prev_bottom
-    if is_marker(img, y, x, c0, c1, c2, c3):
-        bottom = _run_down(img, x, y, c0, c1, c2, c3)
+    if is_marker(img, y, x, lut, m):
+        bottom = _run_down(img, x, y, lut, m)
     else:
         y -= 1
-        while y > top and not is_marker(img, y, x, c0, c1, c2, c3):
+        while y > top and not is_marker(img, y, x, lut, m):
             y -= 1
         bottom = y
     return top, bottom
 
 
 @njit()
-def find_seed(img: np.ndarray, sx: int, sy: int, radius: int, c0: float, c1: float,
-              c2: float, c3: float) -> tuple[int, int]:
+def find_seed(img: np.ndarray, sx: int, sy: int, radius: int, lut: np.ndarray, m: np.ndarray
+              ) -> tuple[int, int]:
     """A marker pixel at or near (sx, sy): along the seed's column, then its row, out to
     ``radius`` px; (-1, -1) when there is none."""
     H, W = img.shape[0], img.shape[1]
@@ -83,17 +83,17 @@ def find_seed(img: np.ndarray, sx: int, sy: int, radius: int, c0: float, c1: flo
         return -1, -1
     for k in range(radius + 1):
         for y in (sy - k, sy + k):
-            if 0 <= y < H and is_marker(img, y, sx, c0, c1, c2, c3):
+            if 0 <= y < H and is_marker(img, y, sx, lut, m):
                 return sx, y
         for x in (sx - k, sx + k):
-            if 0 <= x < W and is_marker(img, sy, x, c0, c1, c2, c3):
+            if 0 <= x < W and is_marker(img, sy, x, lut, m):
                 return x, sy
     return -1, -1
 
 
 @njit()
 def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
-         c0: float, c1: float, c2: float, c3: float
+         lut: np.ndarray, m: np.ndarray, edge_mode: int = 1
          ) -> tuple[int, int, int, float, np.ndarray, np.ndarray]:
     """Walk the marker's columns from the marker pixel (sx, sy) and measure its edges.
 
@@ -107,14 +107,14 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     empty = np.empty((0, 2))
     top = np.full(W, -1, np.int64)
     bottom = np.full(W, -1, np.int64)
-    top[sx] = _run_up(img, sx, sy, c0, c1, c2, c3)
-    bottom[sx] = _run_down(img, sx, sy, c0, c1, c2, c3)
+    top[sx] = _run_up(img, sx, sy, lut, m)
+    bottom[sx] = _run_down(img, sx, sy, lut, m)
     lo, hi = sx, sx + 1  # walked columns [lo, hi)
     for step in (1, -1):
         t, b = top[sx], bottom[sx]
         x = sx + step
         while 0 <= x < W:
-            t, b = _column(img, x, t, b, c0, c1, c2, c3)
+            t, b = _column(img, x, t, b, lut, m)
             if t < 0:
                 break
             top[x], bottom[x] = t, b
@@ -142,33 +142,92 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     if bottom[widest] - top[widest] + 1 < min_len:
         return OK, area, 0, 0.0, empty, empty
     n = (z - a + dx - 1) // dx
-    gap = window + 2
-    s_in = 0.0
-    outside = np.empty(2 * n)
+    gap = window + 1 + LOCAL_ROWS
+    inside = np.zeros(3)
     for i in range(n):
         x = a + i * dx
         if top[x] < gap or bottom[x] + gap > H - 1:
             return BORDER, area, n, 0.0, empty, empty
-        s_in += score(img, (top[x] + bottom[x]) // 2, x)
-        outside[2 * i] = score(img, top[x] - gap, x)
-        outside[2 * i + 1] = score(img, bottom[x] + gap, x)
-    s_in /= n
-    s_out = np.median(outside)
+        y = (top[x] + bottom[x]) // 2
+        for c in range(3):
+            inside[c] += lut[img[y, x, c]]
+    w = chroma_direction(inside[0], inside[1], inside[2])  # the marker's own chroma
+    s_in, s_out = _levels(img, a, n, dx, top, bottom, gap, lut, w)
     contrast = s_in - s_out
     if contrast < 20.0:
         return LOW_CONTRAST, area, n, contrast, empty, empty
-    inv = 1.0 / contrast
     u = np.empty((n, 2))
     d = np.empty((n, 2))
     for i in range(n):
         x = a + i * dx
-        su = 0.0
-        sd = 0.0
-        for o in range(-window, window):
-            su += min(max((score(img, top[x] + o, x) - s_out) * inv, -0.5), 1.5)
-            sd += min(max((score(img, bottom[x] + 1 + o, x) - s_out) * inv, -0.5), 1.5)
         u[i, 0] = x
-        u[i, 1] = top[x] + window - 0.5 - su
         d[i, 0] = x
-        d[i, 1] = bottom[x] - window + 0.5 + sd
+        u[i, 1] = _edge(img, x, top[x], -1, window, s_in, s_out, edge_mode, lut, w)
+        d[i, 1] = _edge(img, x, bottom[x], 1, window, s_in, s_out, edge_mode, lut, w)
     return OK, area, n, contrast, u, d
+
+
+@njit(inline="always")
+def _levels(img, a, n, dx, top, bottom, gap, lut, w):  # type: ignore[no-untyped-def]
+    """(inside, outside) score levels of the whole marker: the mean at the columns' centres
+    and the median just beyond the edge windows."""
+    s_in = 0.0
+    outside = np.empty(2 * n)
+    for i in range(n):
+        x = a + i * dx
+        s_in += score(img, (top[x] + bottom[x]) // 2, x, lut, w)
+        outside[2 * i] = score(img, top[x] - gap, x, lut, w)
+        outside[2 * i + 1] = score(img, bottom[x] + gap, x, lut, w)
+    return s_in / n, np.median(outside)
+
+
+LOCAL_ROWS = 3  # rows beyond the window that give the local background level
+GLOBAL, LOCAL, CROSSING = 0, 1, 2  # edge methods (ExtractorParams.edge)
+
+
+@njit(inline="always")
+def _edge(img, x, end, out, window, s_in, s_out, mode, lut, w):  # type: ignore[no-untyped-def]
+    """Sub-pixel row of the edge beyond ``end`` (the run's last marker row in column x);
+    ``out`` = -1 for the upper edge (background above), +1 for the lower.
+
+    GLOBAL: the coverage sum over ``window`` rows each side, with one inside and one outside
+    level for the whole marker (exact on area-sampled images on a uniform background).
+    LOCAL: the same sum with the outside level measured just beyond the window in this
+    column (median of ``LOCAL_ROWS`` rows): a textured surround is not one level.
+    CROSSING: where the profile crosses halfway between the local levels (linear
+    interpolation), which only reads the pixels at the edge.
+    """
+    if mode == GLOBAL:
+        lo, hi = s_out, s_in
+    else:
+        base = end + out * (window + 1)
+        v0 = score(img, base, x, lut, w)
+        v1 = score(img, base + out, x, lut, w)
+        v2 = score(img, base + 2 * out, x, lut, w)
+        lo = max(min(v0, v1), min(max(v0, v1), v2))  # median of three
+        hi = s_in
+    span = hi - lo
+    if span < 0.25 * (s_in - s_out):
+        lo, hi = s_out, s_in
+        span = hi - lo
+    inv = 1.0 / span
+    if mode == CROSSING:
+        # walk outward from the run's end to the first row below half coverage
+        y = end
+        prev = (score(img, y, x, lut, w) - lo) * inv
+        for _ in range(window + 1):
+            cur = (score(img, y + out, x, lut, w) - lo) * inv
+            if cur < 0.5:
+                t = (prev - 0.5) / (prev - cur) if prev > cur else 0.5
+                return y + out * t
+            prev = cur
+            y += out
+        return end + out * 0.5
+    acc = 0.0
+    if out < 0:
+        for o in range(-window, window):
+            acc += min(max((score(img, end + o, x, lut, w) - lo) * inv, -0.5), 1.5)
+        return end + window - 0.5 - acc
+    for o in range(-window, window):
+        acc += min(max((score(img, end + 1 + o, x, lut, w) - lo) * inv, -0.5), 1.5)
+    return end - window + 0.5 + acc
