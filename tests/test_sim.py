@@ -15,8 +15,8 @@ from services.runtime.launcher import run_deployment
 from services.sim.camera_robot import CameraRobot, CameraRobotParams
 from services.sim.humanoid import Humanoid, HumanoidParams
 from services.sim.render import RenderStyle, coverage_mask, render_view
-from services.sim.webcam import srgb_to_linear
 from services.sim.scenes import marker_pose, random_views
+from services.sim.webcam import srgb_to_linear
 from tests.conftest import run_cli
 
 

@@ -29,8 +29,8 @@ from services.runtime.frames import encode_frame
 from services.sim.camera_robot import CameraRobotParams
 from services.sim.humanoid import HumanoidParams
 from services.sim.render import INKS_BGR, RenderStyle
-from services.sim.webcam import WebcamParams
 from services.sim.state import SimWorld
+from services.sim.webcam import WebcamParams
 
 
 class Settings(ServiceSettings):

@@ -5,10 +5,11 @@ from __future__ import annotations
 import asyncio
 
 import cv2
+from pydantic import model_validator
 
 from schemas import FrameEncoding, MarkerVertices
 from schemas.keys import VERTICES
-from services.runtime.config import ServiceSettings
+from services.runtime.config import RelPath, ServiceSettings
 from services.runtime.context import ServiceContext
 from services.vertex_extractor.extractor import (
     Detection,
@@ -16,10 +17,21 @@ from services.vertex_extractor.extractor import (
     RhombusExtractor,
     warm_up,
 )
+from services.vertex_extractor.learn import load_colour_file
 
 
 class Settings(ServiceSettings, ExtractorParams):
-    """Exactly the extractor's parameters (``ExtractorParams``)."""
+    """The extractor's parameters (``ExtractorParams``), and ``colour_file``: a colour model
+    written by ``shepherd marker learn`` (relative to the deployment file), which replaces
+    ``colour``."""
+
+    colour_file: RelPath | None = None
+
+    @model_validator(mode="after")
+    def _load_colour(self) -> Settings:
+        if self.colour_file is not None:
+            object.__setattr__(self, "colour", load_colour_file(self.colour_file))
+        return self
 
 
 def to_message(det: Detection, seq: int, stamp_ns: int, width: int, height: int

@@ -1,84 +1,210 @@
-"""``shepherd bench --only vertices``: rhombus extraction vs OpenCV's contour route, ArUco
-and AprilTag on the same frames."""
+"""``shepherd bench --only vertices``: rhombus extraction, ours against OpenCV routes, on ideal
+renders and through the simulated webcam (each stage alone, then all), at three resolutions;
+then speed against OpenCV's contour route, ArUco and AprilTag on the same frames.
+
+Fair comparison: every method gets the same frames and no prior (each frame is a cold search,
+except the row marked tracked); the OpenCV routes threshold in HSV over the magenta family
+(hue 135-175 of 180, any ink our default model accepts) and refine the same way our output is
+judged: by the four vertices against the renderer's truth.
+"""
 
 from __future__ import annotations
+
+from collections.abc import Callable
 
 import numpy as np
 
 from services.tools.bench.common import Row, progress, section, times_us
 
+#: webcam stages alone (every other stage off), then the whole camera
+STAGES: dict[str, dict[str, object]] = {
+    "ideal render": {},
+    "photo surround only": dict(blur_sigma_px=0.0, bayer=False, shot_noise=False,
+                                read_noise_e=0.0, jpeg_quality=0, white_balance=(1, 1, 1)),
+    "optics blur only": dict(bayer=False, shot_noise=False, read_noise_e=0.0, jpeg_quality=0,
+                             white_balance=(1, 1, 1)),
+    "Bayer + demosaic only": dict(blur_sigma_px=0.0, shot_noise=False, read_noise_e=0.0,
+                                  jpeg_quality=0, white_balance=(1, 1, 1)),
+    "noise only": dict(blur_sigma_px=0.0, bayer=False, jpeg_quality=0, white_balance=(1, 1, 1)),
+    "JPEG q75-95 only": dict(blur_sigma_px=0.0, bayer=False, shot_noise=False,
+                             read_noise_e=0.0, white_balance=(1, 1, 1)),
+    "webcam (all stages)": {},
+}
+RESOLUTIONS = ((640, 480), (1280, 720), (1920, 1080))
+
+
+def _contour(img: np.ndarray):  # type: ignore[no-untyped-def]
+    import cv2
+    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
+    mask = cv2.inRange(hsv, (135, 120, 50), (175, 255, 255))
+    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
+    if not contours:
+        return None, mask
+    return max(contours, key=cv2.contourArea), mask
+
+
+def _order(quad: np.ndarray) -> np.ndarray:
+    """Left, top, right, bottom."""
+    q = quad.reshape(-1, 2).astype(np.float64)
+    return np.array([q[np.argmin(q[:, 0])], q[np.argmin(q[:, 1])], q[np.argmax(q[:, 0])],
+                     q[np.argmax(q[:, 1])]])
+
+
+def contour_corner_subpix(img: np.ndarray) -> np.ndarray | None:
+    """OpenCV: HSV threshold, largest contour, approxPolyDP, cornerSubPix on the grey image."""
+    import cv2
+    c, _ = _contour(img)
+    if c is None or cv2.contourArea(c) < 100:
+        return None
+    quad = cv2.approxPolyDP(c, 0.04 * cv2.arcLength(c, True), True)
+    if len(quad) != 4:
+        return None
+    grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
+    corners = quad.reshape(-1, 1, 2).astype(np.float32)
+    cv2.cornerSubPix(grey, corners, (5, 5), (-1, -1),
+                     (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+    return _order(corners)
+
+
+def contour_fit_line(img: np.ndarray) -> np.ndarray | None:
+    """OpenCV: HSV threshold, largest contour split at approxPolyDP's corners, fitLine
+    (DIST_HUBER) per side, sides intersected."""
+    import cv2
+    c, _ = _contour(img)
+    if c is None or cv2.contourArea(c) < 100:
+        return None
+    quad = cv2.approxPolyDP(c, 0.04 * cv2.arcLength(c, True), True)
+    if len(quad) != 4:
+        return None
+    pts = c.reshape(-1, 2).astype(np.float32)
+    idx = [int(np.argmin(np.linalg.norm(pts - q, axis=1))) for q in quad.reshape(-1, 2)]
+    lines = []
+    for i in range(4):
+        a, b = idx[i], idx[(i + 1) % 4]
+        seg = pts[a:b + 1] if a < b else np.vstack([pts[a:], pts[:b + 1]])
+        trim = max(len(seg) // 8, 1)
+        seg = seg[trim:-trim] if len(seg) > 2 * trim + 2 else seg
+        if len(seg) < 2:
+            return None
+        vx, vy, x0, y0 = cv2.fitLine(seg, cv2.DIST_HUBER, 0, 0.01, 0.01).ravel()
+        lines.append((float(-vy), float(vx), float(-vy * x0 + vx * y0)))
+    corners = []
+    for i in range(4):
+        (a1, b1, c1), (a2, b2, c2) = lines[i - 1], lines[i]
+        det = a1 * b2 - a2 * b1
+        if abs(det) < 1e-9:
+            return None
+        corners.append(((c1 * b2 - c2 * b1) / det, (a1 * c2 - a2 * c1) / det))
+    return _order(np.array(corners))
+
+
+def _accuracy(method: Callable[[np.ndarray], np.ndarray | None], views: list,
+              photos: list[np.ndarray]) -> tuple[str, str, str, str]:
+    errs, found = [], 0
+    for v in views:
+        got = method(v.rendered.image)
+        if got is not None:
+            found += 1
+            errs.append(np.linalg.norm(got - v.rendered.vertices_px, axis=1))
+    false = sum(method(p) is not None for p in photos)
+    if not errs:
+        return "-", "-", f"0/{len(views)}", str(false)
+    e = np.concatenate(errs)
+    return (f"{np.median(e):.3f}", f"{np.percentile(e, 95):.3f}", f"{found}/{len(views)}",
+            str(false))
+
 
 def run(quick: bool) -> None:
     import cv2
 
-    from services.sim.scenes import random_views
+    from services.sim import textures
+    from services.sim.scenes import random_views, random_webcam
+    from services.sim.webcam import expose
     from services.vertex_extractor.extractor import RhombusExtractor
-    n = 60 if quick else 200
-    progress(f"vertices: rendering {n} frames")
-    views = list(random_views(n, seed=42, distance_m=(0.2, 0.6)))
-    frames = [v.rendered.image for v in views]
-    aruco_frames = [_aruco_frame(v) for v in views]
+    n = 40 if quick else 120
     ex = RhombusExtractor()
 
-    def cold(img: np.ndarray) -> object:
+    def ours(img: np.ndarray) -> np.ndarray | None:
         ex.reset()
-        return ex.extract(img)
+        d = ex.extract(img)
+        return d.vertices_px if d.found else None
 
-    tracked_t: list[np.ndarray] = []
-    for img in frames:
-        ex.reset()
-        ex.extract(img)
-        tracked_t.append(times_us(ex.extract, 5, img))
-    cold_t = np.concatenate([times_us(cold, 3, img) for img in frames])
-    contour_t = np.concatenate([times_us(_contour_route, 3, img)
-                                for img in frames])
-    detector = cv2.aruco.ArucoDetector(cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50))
-    aruco_t = np.concatenate([times_us(detector.detectMarkers, 3, img)
-                              for img in aruco_frames])
+    methods = {"ours": ours, "OpenCV contour + fitLine": contour_fit_line,
+               "OpenCV contour + cornerSubPix": contour_corner_subpix}
+    rng = np.random.default_rng(99)
+    photos = [expose(textures.photograph(640, 480, s), random_webcam(rng), rng)
+              for s in range(20)]
     rows: list[Row] = []
-    ref = float(np.median(contour_t))
-    entries = [("ours, tracked (the last marker's centre seeds the scan)",
-                np.concatenate(tracked_t)),
-               ("ours, cold (coarse grid search)", cold_t),
-               ("OpenCV contour route: cvtColor, inRange, findContours, approxPolyDP", contour_t),
-               ("OpenCV ArUco 4x4, same size", aruco_t)]
-    try:
-        import pupil_apriltags
-        det = pupil_apriltags.Detector(families="tag36h11", nthreads=1)
-        grey = [cv2.cvtColor(f, cv2.COLOR_BGR2GRAY) for f in aruco_frames]
-        entries.append(("AprilTag (pupil-apriltags, tag36h11, 1 thread)",
-                        np.concatenate([times_us(det.detect, 3, g) for g in grey])))
-    except ImportError:
-        rows.append(("AprilTag", "not installed: pip install '.[bench]'", "", ""))
-    for name, t in entries:
-        rows.append((name, f"{np.median(t) / 1e3:.3f}", f"{np.percentile(t, 99) / 1e3:.3f}",
-                     f"{np.median(t) / ref:.2f}"))
-    errs: list[np.ndarray] = []
-    for v in views:
-        ex.reset()
-        d = ex.extract(v.rendered.image)
-        if d.found and d.vertices_px is not None:
-            errs.append(np.linalg.norm(d.vertices_px - v.rendered.vertices_px, axis=1))
-    e = np.concatenate(errs)
-    section(f"Vertex extraction, {n} simulated 640x480 frames (20-60 cm)",
-             ("method", "median ms", "p99 ms", "median / contour route"), rows,
-             f"Our vertex error on these frames: median {np.median(e):.3f} px, p95 "
-             f"{np.percentile(e, 95):.3f} px, found {len(errs)}/{n}. Goal: tracked <= 0.15 ms "
-             "and faster than every reference; cold no slower than the contour route.")
+    for stage, fixed in STAGES.items():
+        progress(f"vertices: {n} frames, {stage}")
+        webcam: dict[str, object] | bool = False if stage == "ideal render" else fixed
+        views = [v for v in random_views(n, seed=42, distance_m=(0.2, 0.8), webcam=webcam)
+                 if v.rendered.marker_visible and v.rendered.coverage_area_px >= 200]
+        for name, method in methods.items():
+            rows.append((stage, name, *_accuracy(method, views, photos)))
+    section(f"Vertex accuracy, 640x480, {n} views per row (20-80 cm, up to 50 deg off the "
+            "normal), nominal magenta", ("frames", "method", "median px", "p95 px", "found",
+                                         "false in 20 photos"), rows,
+            "Same frames, no prior for anyone (cold search). Goals (webcam, all stages): "
+            "median <= 0.12 px, p95 <= 0.4 px, found >= 98 %, no false detection. "
+            "Photographs: crops of scikit-image's bundled photos through random webcams"
+            + ("" if textures.have_photos() else " (not installed: procedural stand-ins)")
+            + ". The paper's own method as published (method = \"paper\") is not built yet.")
+    speed: list[Row] = []
+    for width, height in RESOLUTIONS:
+        cam = _camera(width, height)
+        progress(f"vertices: speed at {width}x{height}")
+        views = list(random_views(max(n // 4, 10), seed=43, camera=cam, distance_m=(0.25, 0.6),
+                                  webcam=True))
+        frames = [v.rendered.image for v in views]
+        tracked = []
+        for img in frames:
+            ex.reset()
+            ex.extract(img)
+            tracked.append(times_us(ex.extract, 5, img))
+        entries = [("ours, tracked", np.concatenate(tracked)),
+                   ("ours, cold", np.concatenate([times_us(ours, 3, f) for f in frames]))]
+        entries += [(name, np.concatenate([times_us(m, 3, f) for f in frames]))
+                    for name, m in list(methods.items())[1:]]
+        if (width, height) == (640, 480):
+            detector = cv2.aruco.ArucoDetector(
+                cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_4X4_50))
+            aruco = [_aruco_frame(v) for v in views]
+            entries.append(("OpenCV ArUco 4x4, same size",
+                            np.concatenate([times_us(detector.detectMarkers, 3, f)
+                                            for f in aruco])))
+            try:
+                import pupil_apriltags
+                det = pupil_apriltags.Detector(families="tag36h11", nthreads=1)
+                grey = [cv2.cvtColor(f, cv2.COLOR_BGR2GRAY) for f in aruco]
+                entries.append(("AprilTag (pupil-apriltags, tag36h11, 1 thread)",
+                                np.concatenate([times_us(det.detect, 3, g) for g in grey])))
+            except ImportError:
+                speed.append((f"{width}x{height}", "AprilTag",
+                              "not installed: pip install '.[bench]'", "", ""))
+        ref = float(np.median(entries[2][1]))
+        for name, t in entries:
+            speed.append((f"{width}x{height}", name, f"{np.median(t) / 1e3:.3f}",
+                          f"{np.percentile(t, 99) / 1e3:.3f}", f"{np.median(t) / ref:.2f}"))
+    section("Vertex extraction speed, webcam frames", ("size", "method", "median ms", "p99 ms",
+                                                       "/ contour + fitLine"), speed,
+            "Goals: tracked <= 0.1 ms at 640x480 and <= 0.2 ms at 1920x1080, cold <= 0.5 ms at "
+            "1920x1080, faster than every reference.")
 
 
-def _contour_route(img: np.ndarray) -> object:
-    import cv2
-    hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
-    mask = cv2.inRange(hsv, (140, 150, 60), (160, 255, 255))
-    contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_SIMPLE)
-    if not contours:
-        return None
-    c = max(contours, key=cv2.contourArea)
-    return cv2.approxPolyDP(c, 0.02 * cv2.arcLength(c, True), True)
+def _camera(width: int, height: int):  # type: ignore[no-untyped-def]
+    """The paper's camera at another size: the same vertical field of view, centred."""
+    from services.core.camera import CameraModel
+    paper = CameraModel.paper()
+    if (width, height) == (paper.width, paper.height):
+        return paper
+    f = height / paper.height
+    K = np.array([[paper.K[0, 0] * f, 0.0, width / 2 - 0.5],
+                  [0.0, paper.K[1, 1] * f, height / 2 - 0.5], [0.0, 0.0, 1.0]])
+    return CameraModel(K, width=width, height=height)
 
 
-def _aruco_frame(view) -> np.ndarray:
+def _aruco_frame(view) -> np.ndarray:  # type: ignore[no-untyped-def]
     """The same frame with an ArUco marker warped onto the rhombus's bounding square."""
     import cv2
     tag = cv2.aruco.generateImageMarker(cv2.aruco.getPredefinedDictionary(
