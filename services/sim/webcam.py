@@ -31,7 +31,8 @@ class WebcamParams(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
     ideal: bool = False
     blur_sigma_px: float = Field(default=0.6, ge=0.0, le=5.0, description="optics PSF, px")
-    exposure: float = Field(default=1.0, gt=0.0, le=16.0, description="gain on scene light")
+    exposure: float = Field(default=0.8, gt=0.0, le=16.0,
+                            description="gain on scene light (0.8: white below clipping)")
     bayer: bool = True
     demosaic: Literal["bilinear", "edge_aware"] = "bilinear"
     full_well_e: float = Field(default=4000.0, gt=0.0,
