@@ -56,17 +56,18 @@ def _learned(ink: str) -> ColourModel:
 
 def test_every_stage_off_is_the_srgb_encoding_of_the_scene():
     scene = np.random.default_rng(0).uniform(0, 1, (40, 60, 3)).astype(np.float32)
-    off = WebcamParams(blur_sigma_px=0, bayer=False, shot_noise=False, read_noise_e=0,
-                       jpeg_quality=0)
+    off = WebcamParams(exposure=1.0, blur_sigma_px=0, bayer=False, shot_noise=False,
+                       read_noise_e=0, jpeg_quality=0)
     out = expose(scene, off, np.random.default_rng(0))
-    assert np.abs(out.astype(float) - 255 * linear_to_srgb(scene)).max() <= 0.6  # 16-bit then 8-bit
+    assert np.abs(out.astype(float) - 255 * linear_to_srgb(scene)).max() <= 0.6  # via 16 bits
     assert np.allclose(srgb_to_linear(linear_to_srgb(scene)), scene, atol=1e-5)
 
 
 def test_bayer_demosaic_keeps_a_flat_colour_and_noise_scales_with_light():
     flat = np.empty((64, 64, 3), np.float32)
     flat[:] = srgb_to_linear(np.array(INKS_BGR["process"]) / 255.0)
-    mosaic = WebcamParams(blur_sigma_px=0, shot_noise=False, read_noise_e=0, jpeg_quality=0)
+    mosaic = WebcamParams(exposure=1.0, blur_sigma_px=0, shot_noise=False, read_noise_e=0,
+                          jpeg_quality=0)
     out = expose(flat, mosaic, np.random.default_rng(0))
     assert np.abs(out[8:-8, 8:-8].astype(int) - INKS_BGR["process"]).max() <= 1
     noisy = WebcamParams(blur_sigma_px=0, bayer=False, jpeg_quality=0, full_well_e=1000)
