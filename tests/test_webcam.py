@@ -152,3 +152,48 @@ def test_learn_refuses_an_image_without_the_marker(tmp_path):
                          capture_output=True, text=True)
     assert out.returncode == 2 and "no marker found" in out.stderr
     assert not (tmp_path / "x.toml").exists()
+
+
+def test_paper_mode_walks_the_columns_as_table_1_says():
+    from services.vertex_extractor.paper import OK, table1, table2
+    img = np.full((200, 300, 3), 90, np.uint8)
+    rhombus = np.array([[60, 100], [150, 40], [240, 100], [150, 160]], np.int32)
+    cv2.fillConvexPoly(img, rhombus, (255, 0, 255), cv2.LINE_8)  # whole pixels, no blending
+    marker = np.all(img == (255, 0, 255), axis=-1)
+    colour = ColourModel()
+    sx, sy, dx, min_len = 147, 95, 3, 12
+    status, U, D = table1(img, sx, sy, min_len, dx, colour.lut, colour.vector)
+    assert status == OK
+    xs = U[:, 0]
+    assert np.all(np.diff(xs) == dx) and sx in xs  # Δx apart through P_0
+    assert np.array_equal(U, np.round(U)) and np.array_equal(D, np.round(D))  # whole pixels
+    for (x, u), (_, d) in zip(U.astype(int), D.astype(int), strict=True):
+        assert marker[u, x] and not marker[u - 1, x]  # U_k: the last marker pixel upward
+        assert marker[d, x] and not marker[d + 1, x]
+        assert d - u >= min_len
+    # each column starts from the previous chord's midpoint moved Δx, and the walk ends where
+    # that pixel is not the marker's or its chord is shorter than MIN_LEN
+    for k in range(len(xs)):
+        if xs[k] != sx:
+            j = k - 1 if xs[k] > sx else k + 1  # the column walked before this one
+            assert U[k, 1] <= int(U[j, 1] + D[j, 1]) // 2 <= D[k, 1]
+    for end, step in ((len(xs) - 1, dx), (0, -dx)):
+        x_next, mid = int(xs[end]) + step, int(U[end, 1] + D[end, 1]) // 2
+        if marker[mid, x_next]:
+            u = d = mid
+            while marker[u - 1, x_next]:
+                u -= 1
+            while marker[d + 1, x_next]:
+                d += 1
+            assert d - u < min_len
+    # Table 2: the greedy split finds the two sides of the top vertex of these exact points
+    aL, _, aR, _, n_left = table2(U)
+    assert aL < 0 < aR  # image y grows downward: the left upper side rises to the right
+    assert abs(n_left - np.sum(xs <= 150)) <= 2
+
+
+def test_paper_mode_is_a_selectable_method_and_less_accurate_than_ours():
+    ours, _, _ = _errors("nominal", ExtractorParams(), n=30)
+    paper, found, total = _errors("nominal", ExtractorParams(method="paper"), n=30)
+    assert found >= 0.8 * total
+    assert np.median(paper) > 2 * np.median(ours)

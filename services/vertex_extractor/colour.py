@@ -103,10 +103,9 @@ def is_marker(img: np.ndarray, y: int, x: int, lut: np.ndarray, m: np.ndarray) -
     s = r + g + b
     if s < m[MIN_SUM] or s <= 0.0:
         return False
-    inv = 1.0 / s
-    dr = r * inv - m[R0]
-    dg = g * inv - m[G0]
-    return m[QA] * dr * dr + 2.0 * m[QB] * dr * dg + m[QC] * dg * dg <= 1.0
+    dr = r - m[R0] * s  # the chromaticity offsets times s: no division
+    dg = g - m[G0] * s
+    return m[QA] * dr * dr + 2.0 * m[QB] * dr * dg + m[QC] * dg * dg <= s * s
 
 
 @njit(inline="always")

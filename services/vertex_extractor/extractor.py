@@ -33,7 +33,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
-from services.vertex_extractor import lines, scan
+from services.vertex_extractor import lines, paper, scan
 from services.vertex_extractor.colour import ColourModel, grid_mask
 
 
@@ -54,6 +54,8 @@ class ExtractorParams(BaseModel):
     min_angle_deg: float = Field(default=25.0, gt=0, lt=90)
     max_candidates: int = Field(default=6, ge=1, le=64,
                                 description="blobs tried, largest first, on a cold search")
+    method: Literal["ours", "paper"] = Field(
+        default="ours", description="paper: Tables 1 and 2 as published (paper.py)")
     edge: Literal["local", "global", "crossing"] = Field(
         default="local", description="sub-pixel edge method (scan.py; chosen by the bench)")
 
@@ -159,9 +161,12 @@ class RhombusExtractor:
         if sx < 0:
             self._seed = None
             return _miss("no marker-coloured pixels at the seed", tracked)
-        status, area, n, contrast, u, d = scan.scan(image, sx, sy, p.min_len_px, p.dx,
-                                                    p.window, lut, model, _EDGES[p.edge])
-        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked)
+        if p.method == "paper":
+            det = self._paper(image, sx, sy, tracked)
+        else:
+            status, area, n, contrast, u, d = scan.scan(image, sx, sy, p.min_len_px, p.dx,
+                                                        p.window, lut, model, _EDGES[p.edge])
+            det = self._judge(status, area, n, contrast, u, d, (W, H), tracked)
         if det.found:
             v = det.vertices_px
             assert v is not None
@@ -171,6 +176,30 @@ class RhombusExtractor:
         else:
             self._seed = None
         return det
+
+    def _paper(self, image: np.ndarray, sx: int, sy: int, tracked: bool) -> Detection:
+        """Tables 1 and 2 as published (``paper.py``), judged by the same plausibility check
+        (without the line residual, which the paper does not have)."""
+        p = self.params
+        H, W = image.shape[:2]
+        status, u, d = paper.table1(image, sx, sy, p.min_len_px, p.dx, p.colour.lut,
+                                    p.colour.vector)
+        if status == paper.BORDER:
+            return _miss("marker touches the image border", tracked)
+        if status == paper.TOO_SHORT or u.shape[0] < 2 * p.min_points_per_edge:
+            return _miss(f"marker too small ({u.shape[0]} columns)", tracked)
+        ok, v = paper.vertices(u, d)
+        if not ok:
+            return _miss("parallel edges: not a rhombus", tracked)
+        verdict, quad_area, amin, amax = lines.check_rhombus(v, 0.0, 0.0, W, H,
+                                                             p.min_angle_deg, np.inf)
+        if verdict not in (lines.PLAUSIBLE, lines.AREA_MISMATCH):
+            return _miss(_verdicts[verdict].format(residual=0.0, area=quad_area, blob=0,
+                                                   amin=amin, amax=amax), tracked)
+        if quad_area < p.min_area_px:
+            return _miss(f"marker too small ({quad_area:.0f} px < {p.min_area_px:.0f} px)",
+                         tracked)
+        return Detection(True, v, min(quad_area / (W * H), 1.0), 0.0, "", tracked, (u, d))
 
     def _judge(self, status: int, area: int, n: int, contrast: float, u: np.ndarray,
                d: np.ndarray, size: tuple[int, int], tracked: bool) -> Detection:
