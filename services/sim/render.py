@@ -120,12 +120,14 @@ def _edge_samples(points_m: np.ndarray, per_edge: int) -> np.ndarray:
     return (a[:, None, :] * (1 - t) + b[:, None, :] * t).reshape(-1, 3)
 
 
-def coverage_mask(polygon_px: np.ndarray, x0: int, y0: int, w: int, h: int) -> np.ndarray:
-    """Fraction of each pixel of the box (x0, y0, w, h) covered by a polygon (float32 0..1).
+def coverage_mask(polygon_px: np.ndarray, x0: int, y0: int, w: int, h: int,
+                  supersample: int = SUPERSAMPLE) -> np.ndarray:
+    """Fraction of each pixel of the box (x0, y0, w, h) covered by a polygon (float32 0..1),
+    to 1 / supersample² px².
 
     Pixel (i, j) covers [j - 0.5, j + 0.5] x [i - 0.5, i + 0.5] (pixel centres at integers).
     """
-    s = SUPERSAMPLE
+    s = supersample
     canvas = np.zeros((h * s, w * s), np.uint8)
     # supersampled coordinate of a point: (x - x0 + 0.5) * s, minus half a subpixel because
     # fillPoly samples at subpixel centres.
@@ -194,7 +196,8 @@ def _rendered(image: np.ndarray, vertices_px: np.ndarray | None, T_camera_marker
 
 def _draw_marker(img: np.ndarray, camera: CameraModel, T_camera_marker: np.ndarray,
                  marker_points_m: np.ndarray, colour: np.ndarray, draw: bool,
-                 srgb: bool = False) -> tuple[np.ndarray | None, bool, float]:
+                 srgb: bool = False, supersample: int = SUPERSAMPLE
+                 ) -> tuple[np.ndarray | None, bool, float]:
     """Composite the rhombus into ``img`` (float32, in place) by its exact pixel coverage, in
     linear light (``srgb``: ``img`` and ``colour`` hold sRGB values 0-255, converted for the
     mix and back). Returns (true vertices px or None, facing the camera, drawn area px)."""
@@ -212,7 +215,8 @@ def _draw_marker(img: np.ndarray, camera: CameraModel, T_camera_marker: np.ndarr
         x0, y0 = max(lo[0], 0), max(lo[1], 0)
         x1, y1 = min(hi[0], W - 1), min(hi[1], H - 1)
         if x1 > x0 and y1 > y0:
-            cov = coverage_mask(boundary, x0, y0, x1 - x0 + 1, y1 - y0 + 1)[..., None]
+            cov = coverage_mask(boundary, x0, y0, x1 - x0 + 1, y1 - y0 + 1,
+                                supersample)[..., None]
             roi = img[y0:y1 + 1, x0:x1 + 1]
             if srgb:
                 mixed = (srgb_to_linear(roi / 255.0) * (1.0 - cov)
@@ -246,12 +250,13 @@ def _draw_body(img: np.ndarray, camera: CameraModel, T_camera_humanoid: np.ndarr
         cv2.fillConvexPoly(cov, np.round((hull.reshape(-1, 2) - [x0, y0]) * 16).astype(np.int32),
                            1.0, cv2.LINE_AA, 4)
         cov = cov[..., None]
-        t = np.linspace(0.0, 1.0, y1 - y0, dtype=np.float32)[:, None, None]
-        u = np.linspace(-1.0, 1.0, x1 - x0, dtype=np.float32)[None, :, None]
-        shade = (1.25 - 0.5 * t) * (1.0 - 0.25 * u * u) + 0.35 * np.exp(-((u - 0.3) / 0.15) ** 2)
+        t = np.linspace(0.0, 1.0, y1 - y0, dtype=np.float32)
+        u = np.linspace(-1.0, 1.0, x1 - x0, dtype=np.float32)
+        shade = (np.outer(1.25 - 0.5 * t, 1.0 - 0.25 * u * u)
+                 + 0.35 * np.exp(-((u - 0.3) / 0.15) ** 2)[None, :])
         roi = img[y0:y1, x0:x1]
         roi *= 1.0 - cov
-        roi += cov * colour * shade
+        roi += (cov * shade[..., None]) * colour
 
 
 def _render_webcam(camera: CameraModel, T_camera_marker: np.ndarray,
@@ -270,8 +275,9 @@ def _render_webcam(camera: CameraModel, T_camera_marker: np.ndarray,
         _draw_body(img, camera, T_camera_humanoid,
                    srgb_to_linear(np.array(BODY_BGR) / 255.0).astype(np.float32), True)
     ink = srgb_to_linear(np.array(style.marker_bgr) / 255.0).astype(np.float32)
+    # 8 x 8 samples a pixel (1/64 px²) are finer than any webcam's blur
     vertices_px, facing, area = _draw_marker(img, camera, T_camera_marker, marker_points_m, ink,
-                                             draw_marker)
+                                             draw_marker, supersample=8)
     img *= style.brightness
     if style.motion_blur_px > 0.5:
         img = cv2.filter2D(img, -1, _blur_kernel(style.motion_blur_px,
