@@ -275,9 +275,8 @@ def _render_webcam(camera: CameraModel, T_camera_marker: np.ndarray,
         _draw_body(img, camera, T_camera_humanoid,
                    srgb_to_linear(np.array(BODY_BGR) / 255.0).astype(np.float32), True)
     ink = srgb_to_linear(np.array(style.marker_bgr) / 255.0).astype(np.float32)
-    # 8 x 8 samples a pixel (1/64 px²) are finer than any webcam's blur
     vertices_px, facing, area = _draw_marker(img, camera, T_camera_marker, marker_points_m, ink,
-                                             draw_marker, supersample=8)
+                                             draw_marker)
     img *= style.brightness
     if style.motion_blur_px > 0.5:
         img = cv2.filter2D(img, -1, _blur_kernel(style.motion_blur_px,

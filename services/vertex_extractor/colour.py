@@ -128,19 +128,22 @@ def chroma_direction(b: float, g: float, r: float) -> np.ndarray:
 
 @njit()
 def grid_mask(img: np.ndarray, step: int, offset: int, lut: np.ndarray, m: np.ndarray
-              ) -> tuple[np.ndarray, int]:
-    """Interior mask on the grid (offset + i step, offset + j step), and its count."""
+              ) -> tuple[np.ndarray, int, tuple[int, int, int, int]]:
+    """Interior mask on the grid (offset + i step, offset + j step), its count, and the
+    bounding box (i0, i1, j0, j1) of the marked cells, inclusive (empty: i0 > i1)."""
     h = (img.shape[0] - offset + step - 1) // step
     w = (img.shape[1] - offset + step - 1) // step
     out = np.zeros((h, w), np.uint8)
     count = 0
+    i0, i1, j0, j1 = h, -1, w, -1
     for i in range(h):
         y = offset + i * step
         for j in range(w):
             if is_marker(img, y, offset + j * step, lut, m):
                 out[i, j] = 255
                 count += 1
-    return out, count
+                i0, i1, j0, j1 = min(i0, i), max(i1, i), min(j0, j), max(j1, j)
+    return out, count, (i0, i1, j0, j1)
 
 
 def ellipse_axes(model: ColourModel) -> tuple[float, float, float]:

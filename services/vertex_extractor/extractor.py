@@ -47,6 +47,9 @@ class ExtractorParams(BaseModel):
     min_len_px: int = Field(default=12, ge=4, description="MIN_LEN: shortest chord used (px)")
     window: int = Field(default=5, ge=2, le=12,
                         description="sub-pixel window: rows each side of the edge")
+    outside_rows: int = Field(default=-1, ge=-1, le=12,
+                              description="sub-pixel window rows outside the marker "
+                                          "(-1: as many as window)")
     coarse_step: int = Field(default=8, ge=2, le=32, description="grid of the cold search (px)")
     min_area_px: float = Field(default=200.0, gt=0, description="smaller markers are refused")
     max_residual_px: float = Field(default=0.8, gt=0)
@@ -56,11 +59,12 @@ class ExtractorParams(BaseModel):
                                 description="blobs tried, largest first, on a cold search")
     method: Literal["ours", "paper"] = Field(
         default="ours", description="paper: Tables 1 and 2 as published (paper.py)")
-    edge: Literal["local", "global", "crossing"] = Field(
-        default="local", description="sub-pixel edge method (scan.py; chosen by the bench)")
+    edge: Literal["local", "global", "crossing", "orthogonal"] = Field(
+        default="orthogonal", description="sub-pixel edge method (scan.py; chosen by the bench)")
 
 
-_EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING}
+_EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING,
+          "orthogonal": scan.ORTHOGONAL}
 
 
 @dataclass(frozen=True)
@@ -134,13 +138,16 @@ class RhombusExtractor:
         """Seeds (x, y, radius px, grid cells) on the marker-coloured blobs of a 1-in-s pixel
         grid, largest first (at most ``max_candidates``)."""
         s = self.params.coarse_step
-        small, count = grid_mask(image, s, s // 2, self.params.colour.lut,
-                                 self.params.colour.vector)
+        small, count, (i0, i1, j0, j1) = grid_mask(image, s, s // 2, self.params.colour.lut,
+                                                   self.params.colour.vector)
         if count == 0:
             return "no marker-coloured pixels"
         if count > 0.5 * small.size:
             return "most of the frame is marker-coloured"
-        _, labels, stats, centroids = cv2.connectedComponentsWithStats(small, connectivity=8)
+        # label only the marked cells' bounding box (with a border): the grid is mostly empty
+        i0, j0 = max(i0 - 1, 0), max(j0 - 1, 0)
+        box = np.ascontiguousarray(small[i0:i1 + 2, j0:j1 + 2])
+        _, labels, stats, centroids = cv2.connectedComponentsWithStats(box, connectivity=8)
         areas = stats[1:, cv2.CC_STAT_AREA]
         seeds = []
         for k in np.argsort(areas)[::-1][:self.params.max_candidates]:
@@ -149,7 +156,7 @@ class RhombusExtractor:
             if labels[cy, cx] != label:  # not convex: any cell of the blob
                 ys, xs = np.nonzero(labels == label)
                 cx, cy = int(xs[len(xs) // 2]), int(ys[len(ys) // 2])
-            seeds.append((s // 2 + cx * s, s // 2 + cy * s, s, int(areas[k])))
+            seeds.append((s // 2 + (cx + j0) * s, s // 2 + (cy + i0) * s, s, int(areas[k])))
         return seeds
 
     def _extract_from(self, image: np.ndarray, seed: tuple[int, int, int],
@@ -165,14 +172,15 @@ class RhombusExtractor:
             det = self._paper(image, sx, sy, tracked)
         else:
             status, area, n, contrast, u, d = scan.scan(image, sx, sy, p.min_len_px, p.dx,
-                                                        p.window, lut, model, _EDGES[p.edge])
+                                                        p.window, lut, model, _EDGES[p.edge],
+                                                        p.outside_rows)
             det = self._judge(status, area, n, contrast, u, d, (W, H), tracked)
         if det.found:
-            v = det.vertices_px
-            assert v is not None
-            centre = v.mean(0)
-            radius = max(4, int(0.25 * min(np.ptp(v[:, 0]), np.ptp(v[:, 1]))))
-            self._seed = (int(centre[0]), int(centre[1]), radius)
+            assert det.vertices_px is not None
+            (x0, y0), (x1, y1), (x2, y2), (x3, y3) = det.vertices_px.tolist()  # plain floats:
+            xs, ys = (x0, x1, x2, x3), (y0, y1, y2, y3)  # numpy's reductions cost more here
+            radius = max(4, int(0.25 * min(max(xs) - min(xs), max(ys) - min(ys))))
+            self._seed = (int(sum(xs) / 4), int(sum(ys) / 4), radius)
         else:
             self._seed = None
         return det

@@ -16,6 +16,7 @@ import numpy as np
 from services.core.jit import njit
 
 FIT_OK, TOO_FEW_POINTS, PARALLEL = 0, 1, 2
+MIN_SCALE_PX = 0.03  # least robust residual scale (px) for Huber's threshold
 PLAUSIBLE, NOT_FINITE, OUTSIDE, NOT_CONVEX, BAD_ANGLES, NOT_STRAIGHT, AREA_MISMATCH = range(7)
 
 
@@ -63,8 +64,8 @@ def best_split(points: np.ndarray, min_points: int) -> int:
 
 
 @njit()
-def huber_line(points: np.ndarray, c: float = 1.345, iterations: int = 10
-               ) -> tuple[float, float, float, float, int]:
+def huber_line(points: np.ndarray, c: float = 1.345, iterations: int = 10,
+               scaled: bool = True) -> tuple[float, float, float, float, int]:
     """Huber-weighted TLS line through points (N >= 2, 2) px by IRLS.
 
     Returns (nx, ny, d, sum of squared distances of the inliers, inlier count); inliers are
@@ -74,6 +75,7 @@ def huber_line(points: np.ndarray, c: float = 1.345, iterations: int = 10
     w = np.ones(n)
     r = np.zeros(n)
     nx = ny = d = 0.0
+    scale = 1.0
     for it in range(iterations):
         sw = mx = my = 0.0
         for i in range(n):
@@ -95,8 +97,11 @@ def huber_line(points: np.ndarray, c: float = 1.345, iterations: int = 10
         d = nx * mx + ny * my
         for i in range(n):
             r[i] = nx * points[i, 0] + ny * points[i, 1] - d
+        if it == 0 and scaled:  # Huber's threshold in units of the first fit's robust
+            scale = max(1.4826 * np.median(np.abs(r)), MIN_SCALE_PX)  # scale (MAD), floored
+        for i in range(n):
             a = abs(r[i])
-            w[i] = 1.0 if a <= c else c / a
+            w[i] = 1.0 if a <= c * scale else c * scale / a
         if it > 0 and moved < 1e-9:
             break
     r2 = r * r

@@ -93,7 +93,7 @@ def find_seed(img: np.ndarray, sx: int, sy: int, radius: int, lut: np.ndarray, m
 
 @njit()
 def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
-         lut: np.ndarray, m: np.ndarray, edge_mode: int = 1
+         lut: np.ndarray, m: np.ndarray, edge_mode: int = 1, outer: int = -1
          ) -> tuple[int, int, int, float, np.ndarray, np.ndarray]:
     """Walk the marker's columns from the marker pixel (sx, sy) and measure its edges.
 
@@ -142,7 +142,9 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     if bottom[widest] - top[widest] + 1 < min_len:
         return OK, area, 0, 0.0, empty, empty
     n = (z - a + dx - 1) // dx
-    gap = window + 1 + LOCAL_ROWS
+    if outer < 0:
+        outer = window
+    gap = max(window, outer) + 1 + LOCAL_ROWS
     inside = np.zeros(3)
     for i in range(n):
         x = a + i * dx
@@ -158,12 +160,16 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
         return LOW_CONTRAST, area, n, contrast, empty, empty
     u = np.empty((n, 2))
     d = np.empty((n, 2))
+    inside /= n
+    wl = np.empty(3)  # the score direction at one edge point
     for i in range(n):
         x = a + i * dx
         u[i, 0] = x
         d[i, 0] = x
-        u[i, 1] = _edge(img, x, top[x], -1, window, s_in, s_out, edge_mode, lut, w)
-        d[i, 1] = _edge(img, x, bottom[x], 1, window, s_in, s_out, edge_mode, lut, w)
+        u[i, 1] = _edge(img, x, top[x], -1, window, outer, s_in, s_out, edge_mode, lut, w,
+                        inside, wl)
+        d[i, 1] = _edge(img, x, bottom[x], 1, window, outer, s_in, s_out, edge_mode, lut, w,
+                        inside, wl)
     return OK, area, n, contrast, u, d
 
 
@@ -182,11 +188,12 @@ def _levels(img, a, n, dx, top, bottom, gap, lut, w):  # type: ignore[no-untyped
 
 
 LOCAL_ROWS = 3  # rows beyond the window that give the local background level
-GLOBAL, LOCAL, CROSSING = 0, 1, 2  # edge methods (ExtractorParams.edge)
+GLOBAL, LOCAL, CROSSING, ORTHOGONAL = 0, 1, 2, 3  # edge methods (ExtractorParams.edge)
 
 
 @njit(inline="always")
-def _edge(img, x, end, out, window, s_in, s_out, mode, lut, w):  # type: ignore[no-untyped-def]
+def _edge(img, x, end, out, window, outer, s_in, s_out, mode, lut, w, colour_in,  # type: ignore[no-untyped-def]
+          wl):
     """Sub-pixel row of the edge beyond ``end`` (the run's last marker row in column x);
     ``out`` = -1 for the upper edge (background above), +1 for the lower.
 
@@ -196,26 +203,54 @@ def _edge(img, x, end, out, window, s_in, s_out, mode, lut, w):  # type: ignore[
     column (median of ``LOCAL_ROWS`` rows): a textured surround is not one level.
     CROSSING: where the profile crosses halfway between the local levels (linear
     interpolation), which only reads the pixels at the edge.
+    ORTHOGONAL: the LOCAL sum along a direction orthogonal to grey and to the local
+    background's own chroma (measured beyond the window), so that the surround's brightness
+    and saturation changes score nothing; LOCAL where the background is grey or its chroma
+    leaves too little contrast. ``colour_in``: the marker's mean linear colour (B, G, R);
+    ``wl``: scratch for the local direction.
     """
+    wl[0], wl[1], wl[2] = w[0], w[1], w[2]
+    if mode == ORTHOGONAL:
+        base = end + out * (outer + 1)
+        pb = pg = pr = 0.0
+        for k in range(LOCAL_ROWS):
+            pb += lut[img[base + k * out, x, 0]]
+            pg += lut[img[base + k * out, x, 1]]
+            pr += lut[img[base + k * out, x, 2]]
+        mean = (pb + pg + pr) / 3.0
+        pb, pg, pr = pb - mean, pg - mean, pr - mean  # the surround's chroma (x LOCAL_ROWS)
+        cb, cg, cr = pg - pr, pr - pb, pb - pg        # (1, 1, 1) x chroma: orthogonal to both
+        norm = np.sqrt(cb * cb + cg * cg + cr * cr)
+        if norm > 0.05 * LOCAL_ROWS * (s_in - s_out):  # a coloured surround
+            cb, cg, cr = cb / norm, cg / norm, cr / norm
+            hi_o = cb * colour_in[0] + cg * colour_in[1] + cr * colour_in[2]
+            if hi_o < 0:
+                cb, cg, cr, hi_o = -cb, -cg, -cr, -hi_o
+            if hi_o > 0.4 * (s_in - s_out):
+                wl[0], wl[1], wl[2] = cb, cg, cr
+                w = wl
+                s_in = hi_o
     if mode == GLOBAL:
         lo, hi = s_out, s_in
     else:
-        base = end + out * (window + 1)
+        base = end + out * (outer + 1)
         v0 = score(img, base, x, lut, w)
         v1 = score(img, base + out, x, lut, w)
         v2 = score(img, base + 2 * out, x, lut, w)
         lo = max(min(v0, v1), min(max(v0, v1), v2))  # median of three
         hi = s_in
     span = hi - lo
-    if span < 0.25 * (s_in - s_out):
+    if span < 0.25 * (s_in - s_out) and mode != ORTHOGONAL:
         lo, hi = s_out, s_in
         span = hi - lo
+    if span <= 1e-9:
+        return end + out * 0.5
     inv = 1.0 / span
     if mode == CROSSING:
         # walk outward from the run's end to the first row below half coverage
         y = end
         prev = (score(img, y, x, lut, w) - lo) * inv
-        for _ in range(window + 1):
+        for _ in range(outer + 1):
             cur = (score(img, y + out, x, lut, w) - lo) * inv
             if cur < 0.5:
                 t = (prev - 0.5) / (prev - cur) if prev > cur else 0.5
@@ -225,9 +260,9 @@ def _edge(img, x, end, out, window, s_in, s_out, mode, lut, w):  # type: ignore[
         return end + out * 0.5
     acc = 0.0
     if out < 0:
-        for o in range(-window, window):
+        for o in range(-outer, window):
             acc += min(max((score(img, end + o, x, lut, w) - lo) * inv, -0.5), 1.5)
         return end + window - 0.5 - acc
-    for o in range(-window, window):
+    for o in range(-window, outer):
         acc += min(max((score(img, end + 1 + o, x, lut, w) - lo) * inv, -0.5), 1.5)
     return end - window + 0.5 + acc
