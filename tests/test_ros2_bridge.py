@@ -101,12 +101,21 @@ def test_what_the_bridge_publishes_decodes_in_rosbags_to_the_same_values(router,
         tokens = [str(r.ok.key_expr) for r in await asyncio.to_thread(
             lambda: list(ros.liveliness().get("@ros2_lv/0/**", timeout=1.0))) if r.ok]
         await asyncio.sleep(0.3)
+
+        async def until(count: int, topic: str = "0/shepherd/humanoid/pose") -> None:
+            for _ in range(100):  # up to 5 s on a loaded machine
+                if sum(k.startswith(topic) for k, _, _ in samples) >= count:
+                    return
+                await asyncio.sleep(0.05)
+
         bus.put(HUMANOID_POSE, _pose(0.6, -0.2, 0.5, stamp))
         bus.put(CAMERA_GOAL, CameraGoal(stamp_ns=stamp, x=0.3, y=0.1, yaw=-1.0, reason="d"))
         bus.put(ODOM, CameraPose(stamp_ns=stamp, x=0.05, y=0.0, yaw=0.25))
-        await asyncio.sleep(0.5)
+        await until(1)
+        await asyncio.sleep(0.2)
         bus.put(HUMANOID_POSE, _pose(0.61, -0.2, 0.5, stamp + 1))
-        await asyncio.sleep(0.5)
+        await until(2)
+        await asyncio.sleep(0.2)
         task.cancel()
         return tokens
     tokens = asyncio.run(go())

@@ -102,6 +102,7 @@ def test_a_command_whose_code_disagrees_with_its_name_is_rejected(router: str, m
         heard = bus.subscribe(SIM_IR, IrCommand, latest=False, queue=16)
         task = asyncio.create_task(run_deployment(dep, duration=15))
         await wait_alive_async(bus.session, "ir_transmitter")
+        await wait_matched(bus, IR_COMMAND)
         key = bus.keys.key(IR_COMMAND)
         encoding = IrCommand.zenoh_encoding()
         bus.session.put(key, json.dumps({"command": "stop", "code": 0x86}), encoding=encoding)

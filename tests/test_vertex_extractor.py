@@ -105,7 +105,7 @@ def _bad_frames():
     v = r.vertices_px
     cx, cy = v.mean(0).astype(int)
     hidden[cy - 60:cy + 5, cx - 8:cx + 70] = (40, 40, 40)
-    yield "partly hidden", hidden, "do not make a convex quadrilateral"
+    yield "partly hidden", hidden, ("do not make a convex quadrilateral", "partly hidden")
     small = render_marker(2.5)
     yield "too small", small.image, "small"
 
@@ -114,8 +114,8 @@ def _bad_frames():
                          ids=[b[0] for b in _bad_frames()])
 def test_bad_frames_give_found_false_with_a_reason(name, image, reason):
     det = RhombusExtractor().extract(image)
-    assert not det.found
-    assert reason in det.reason and det.reason
+    assert not det.found and det.reason
+    assert any(r in det.reason for r in ((reason,) if isinstance(reason, str) else reason))
 
 
 def test_service_publishes_vertices_and_survives_bad_frames(router, make_bus):

@@ -166,10 +166,22 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
         x = a + i * dx
         u[i, 0] = x
         d[i, 0] = x
-        u[i, 1] = _edge(img, x, top[x], -1, window, outer, s_in, s_out, edge_mode, lut, w,
-                        inside, wl)
-        d[i, 1] = _edge(img, x, bottom[x], 1, window, outer, s_in, s_out, edge_mode, lut, w,
-                        inside, wl)
+        # a steep edge crosses a column over more rows: widen the window by its slope, as far
+        # as the border and half the chord allow
+        xl, xr = max(x - 1, lo), min(x + 1, hi - 1)
+        room = (bottom[x] - top[x] + 1) // 2 - window
+        for side in range(2):
+            run = top if side == 0 else bottom
+            slope = abs(run[xr] - run[xl]) / max(xr - xl, 1)
+            end = top[x] if side == 0 else bottom[x]
+            border = end - gap if side == 0 else H - 1 - gap - end
+            ext = max(min(int(STEEP * slope + 0.5), 2 * window, room, border), 0)
+            if side == 0:
+                u[i, 1] = _edge(img, x, end, -1, window + ext, outer + ext, s_in, s_out,
+                                edge_mode, lut, w, inside, wl)
+            else:
+                d[i, 1] = _edge(img, x, end, 1, window + ext, outer + ext, s_in, s_out,
+                                edge_mode, lut, w, inside, wl)
     return OK, area, n, contrast, u, d
 
 
@@ -188,6 +200,7 @@ def _levels(img, a, n, dx, top, bottom, gap, lut, w):  # type: ignore[no-untyped
 
 
 LOCAL_ROWS = 3  # rows beyond the window that give the local background level
+STEEP = 1.5     # extra window rows per unit of edge slope (rows per column)
 GLOBAL, LOCAL, CROSSING, ORTHOGONAL = 0, 1, 2, 3  # edge methods (ExtractorParams.edge)
 
 
