@@ -33,14 +33,19 @@ STAGES: dict[str, dict[str, object]] = {
 RESOLUTIONS = ((640, 480), (1280, 720), (1920, 1080))
 
 
-def _contour(img: np.ndarray):  # type: ignore[no-untyped-def]
+def _contour_quad(img: np.ndarray):  # type: ignore[no-untyped-def]
+    """HSV threshold, the largest contour and its approxPolyDP quadrilateral, or None."""
     import cv2
     hsv = cv2.cvtColor(img, cv2.COLOR_BGR2HSV)
     mask = cv2.inRange(hsv, (135, 120, 50), (175, 255, 255))
     contours, _ = cv2.findContours(mask, cv2.RETR_EXTERNAL, cv2.CHAIN_APPROX_NONE)
     if not contours:
-        return None, mask
-    return max(contours, key=cv2.contourArea), mask
+        return None
+    c = max(contours, key=cv2.contourArea)
+    if cv2.contourArea(c) < 100:
+        return None
+    quad = cv2.approxPolyDP(c, 0.04 * cv2.arcLength(c, True), True)
+    return (c, quad) if len(quad) == 4 else None
 
 
 def _order(quad: np.ndarray) -> np.ndarray:
@@ -53,12 +58,10 @@ def _order(quad: np.ndarray) -> np.ndarray:
 def contour_corner_subpix(img: np.ndarray) -> np.ndarray | None:
     """OpenCV: HSV threshold, largest contour, approxPolyDP, cornerSubPix on the grey image."""
     import cv2
-    c, _ = _contour(img)
-    if c is None or cv2.contourArea(c) < 100:
+    found = _contour_quad(img)
+    if found is None:
         return None
-    quad = cv2.approxPolyDP(c, 0.04 * cv2.arcLength(c, True), True)
-    if len(quad) != 4:
-        return None
+    quad = found[1]
     grey = cv2.cvtColor(img, cv2.COLOR_BGR2GRAY)
     corners = quad.reshape(-1, 1, 2).astype(np.float32)
     cv2.cornerSubPix(grey, corners, (5, 5), (-1, -1),
@@ -70,12 +73,10 @@ def contour_fit_line(img: np.ndarray) -> np.ndarray | None:
     """OpenCV: HSV threshold, largest contour split at approxPolyDP's corners, fitLine
     (DIST_HUBER) per side, sides intersected."""
     import cv2
-    c, _ = _contour(img)
-    if c is None or cv2.contourArea(c) < 100:
+    found = _contour_quad(img)
+    if found is None:
         return None
-    quad = cv2.approxPolyDP(c, 0.04 * cv2.arcLength(c, True), True)
-    if len(quad) != 4:
-        return None
+    c, quad = found
     pts = c.reshape(-1, 2).astype(np.float32)
     idx = [int(np.argmin(np.linalg.norm(pts - q, axis=1))) for q in quad.reshape(-1, 2)]
     lines = []
