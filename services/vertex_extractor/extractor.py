@@ -114,7 +114,9 @@ class RhombusExtractor:
     def _first_marker(self, image: np.ndarray, seeds: list[tuple[int, int, int, int]]
                       ) -> Detection:
         """The one blob, largest first, that passes as the marker. A second blob of similar
-        size (>= 40 % of the found one's cells) that passes too makes the frame ambiguous."""
+        size (>= 40 % of the found one's cells) that passes too, with edges about as straight
+        (residual within 3x + 0.1 px), makes the frame ambiguous; otherwise the straighter
+        one is the marker."""
         first: Detection | None = None
         for i, (x, y, radius, cells) in enumerate(seeds):
             det = self._extract_from(image, (x, y, radius), tracked=False)
@@ -125,9 +127,15 @@ class RhombusExtractor:
             for x2, y2, r2, cells2 in seeds[i + 1:]:
                 if cells2 < 0.4 * cells:
                     break
-                if self._extract_from(image, (x2, y2, r2), tracked=False).found:
+                other = self._extract_from(image, (x2, y2, r2), tracked=False)
+                if not other.found:
+                    continue
+                lo, hi = sorted((det.residual_px, other.residual_px))
+                if hi < 3 * lo + 0.1:
                     self._seed = None
                     return _miss("two or more marker-like rhombi of similar size (ambiguous)")
+                if other.residual_px < det.residual_px:
+                    det, seed = other, self._seed
             self._seed = seed
             return det
         self._seed = None
