@@ -1,5 +1,6 @@
 import asyncio
 import math
+import zlib
 from pathlib import Path
 
 import cv2
@@ -250,3 +251,20 @@ def test_the_shipped_calibration_of_the_simulated_camera_is_ours_and_close_to_th
     assert np.allclose(shipped.K, cal.K, rtol=1e-8, atol=1e-6)  # regenerated: the same file
     assert not np.array_equal(shipped.K, CameraModel.paper().K)  # a measurement, not truth
     assert np.allclose(shipped.K, CameraModel.paper().K, rtol=2e-3, atol=0.5)
+
+
+def test_without_scikit_image_a_procedural_room_stands_in(monkeypatch):
+    from services.sim import textures
+    monkeypatch.setattr(textures, "_skimage_data", lambda: None)
+    textures.photo_srgb.cache_clear()
+    textures.photo_scene.cache_clear()
+    try:
+        assert not textures.have_photos()
+        room = textures.photo_scene(160, 120, 3)
+        assert room.shape == (120, 160, 3) and 0.0 <= room.min() and room.max() <= 1.0
+        assert room.std() > 0.01  # textured, not flat
+        again = textures.photo_srgb(textures.WALL_PHOTOS[0])
+        assert np.array_equal(again, textures._procedural(zlib.crc32(b"astronaut.png")))
+    finally:
+        textures.photo_srgb.cache_clear()
+        textures.photo_scene.cache_clear()

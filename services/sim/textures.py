@@ -8,6 +8,7 @@ scikit-image (it is in the ``photos`` and ``dev`` extras) a procedural texture s
 
 from __future__ import annotations
 
+import zlib
 from functools import lru_cache
 from pathlib import Path
 
@@ -40,7 +41,7 @@ def photo_srgb(name: str) -> np.ndarray:
     folder = _skimage_data()
     image = None if folder is None else cv2.imread(str(folder / name), cv2.IMREAD_COLOR)
     if image is None:
-        image = _procedural(abs(hash(name)) % 2**31)
+        image = _procedural(zlib.crc32(name.encode()))  # stable across processes
     image.setflags(write=False)
     return image
 
