@@ -84,6 +84,7 @@ def test_webcam_render_keeps_returning_the_truth():
     assert view.style.camera is not None and not view.style.camera.ideal
 
 
+@pytest.mark.slow  # many renders: left out of `make test-fast`
 def test_nominal_magenta_through_the_webcam():
     errors, found, total = _errors("nominal", ExtractorParams())
     assert found >= 0.98 * total, f"found {found}/{total}"
@@ -91,6 +92,7 @@ def test_nominal_magenta_through_the_webcam():
     assert np.percentile(errors, 95) <= 0.4, f"p95 {np.percentile(errors, 95):.3f} px"
 
 
+@pytest.mark.slow  # many renders: left out of `make test-fast`
 def test_default_model_finds_process_magenta_and_nothing_in_photographs():
     errors, found, total = _errors("process", ExtractorParams(), n=40)
     assert found >= 0.97 * total, f"found {found}/{total}"
@@ -116,6 +118,7 @@ def test_a_hot_pink_rhombus_is_not_the_marker():
     assert RhombusExtractor().extract(img).found
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("ink", ["process", "bluish"])
 def test_learn_round_trip(ink, tmp_path):
     model = _learned(ink)
@@ -192,6 +195,7 @@ def test_paper_mode_walks_the_columns_as_table_1_says():
     assert abs(n_left - np.sum(xs <= 150)) <= 2
 
 
+@pytest.mark.slow  # many renders: left out of `make test-fast`
 def test_paper_mode_is_a_selectable_method_and_less_accurate_than_ours():
     ours, _, _ = _errors("nominal", ExtractorParams(), n=30)
     paper, found, total = _errors("nominal", ExtractorParams(method="paper"), n=30)
