@@ -12,6 +12,7 @@ import math
 import time
 from collections import deque
 from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
 from typing import Literal
 
 from pydantic import Field
@@ -105,32 +106,39 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
     ticker = Ticker(dt / config.speedup)
     seq = 0
     odometry = OdometryFeed(sim.robot.params.odom_hz, sim.robot.params.odom_latency_s)
-    while True:
-        while (cmd := commands.get_nowait()) is not None:
-            sim.command(cmd.command)
-        if (goal := goals.get_nowait()) is not None:
-            sim.robot.goal = (goal.x, goal.y, goal.yaw)
-        sim.step(dt)
-        if config.brightness_wave:
-            gain = 1.0 + config.brightness_wave * math.sin(2 * math.pi * sim.time_s / 7.0)
-            sim.style = RenderStyle(**{**base_style.__dict__,
-                                       "brightness": base_style.brightness * gain})
-        rendered = await asyncio.to_thread(sim.render)  # numpy and OpenCV release the GIL
-        stamp = time.time_ns()
-        # odometry on its own rate, published its latency after its stamp
-        for sample in odometry.tick(sim.time_s, stamp, sim.robot.odometry):
-            bus.put(ODOM, sample)
-        T = rendered.T_camera_marker
-        h, r = sim.humanoid, sim.robot
-        bus.put(SIM_TRUTH, SimTruth(
-            stamp_ns=stamp, seq=seq, humanoid=Pose2D(x=h.x, y=h.y, yaw=h.yaw),
-            camera=Pose2D(x=r.x, y=r.y, yaw=r.yaw),
-            marker_in_camera=MarkerInCamera(position=tuple(T[:3, 3]),  # type: ignore[arg-type]
-                                            quaternion=quaternion_from_R(T[:3, :3]))))
-        header, payload = encode_frame(rendered.image, seq, stamp, config.jpeg_quality)
-        bus.put_frame(header, payload)
-        seq += 1
-        if config.realtime:
-            await ticker.wait()
-        else:
-            await asyncio.sleep(0)
+    loop = asyncio.get_running_loop()
+    renderer = ThreadPoolExecutor(max_workers=1, thread_name_prefix="sim-render")
+    try:
+        while True:
+            while (cmd := commands.get_nowait()) is not None:
+                sim.command(cmd.command)
+            if (goal := goals.get_nowait()) is not None:
+                sim.robot.goal = (goal.x, goal.y, goal.yaw)
+            sim.step(dt)
+            if config.brightness_wave:
+                gain = 1.0 + config.brightness_wave * math.sin(2 * math.pi * sim.time_s / 7.0)
+                sim.style = RenderStyle(**{**base_style.__dict__,
+                                           "brightness": base_style.brightness * gain})
+            # off the event loop (numpy and OpenCV release the GIL), always on the same thread so
+            # that its allocations stay in one malloc arena
+            rendered = await loop.run_in_executor(renderer, sim.render)
+            stamp = time.time_ns()
+            # odometry on its own rate, published its latency after its stamp
+            for sample in odometry.tick(sim.time_s, stamp, sim.robot.odometry):
+                bus.put(ODOM, sample)
+            T = rendered.T_camera_marker
+            h, r = sim.humanoid, sim.robot
+            bus.put(SIM_TRUTH, SimTruth(
+                stamp_ns=stamp, seq=seq, humanoid=Pose2D(x=h.x, y=h.y, yaw=h.yaw),
+                camera=Pose2D(x=r.x, y=r.y, yaw=r.yaw),
+                marker_in_camera=MarkerInCamera(position=tuple(T[:3, 3]),  # type: ignore[arg-type]
+                                                quaternion=quaternion_from_R(T[:3, :3]))))
+            header, payload = encode_frame(rendered.image, seq, stamp, config.jpeg_quality)
+            bus.put_frame(header, payload)
+            seq += 1
+            if config.realtime:
+                await ticker.wait()
+            else:
+                await asyncio.sleep(0)
+    finally:
+        renderer.shutdown(wait=False, cancel_futures=True)
