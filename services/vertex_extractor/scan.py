@@ -19,6 +19,7 @@ from services.core.jit import njit
 from services.vertex_extractor.colour import chroma_direction, is_marker, score
 
 OK, BORDER, LOW_CONTRAST = 0, 1, 2
+MIN_CONTRAST = 12.0  # least marker-to-surround score difference (linear light x 255)
 
 
 @njit(inline="always")
@@ -101,7 +102,7 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     D points (n, 2)), points in pixels (x, y) on columns Δx = ``dx`` apart, over the widest
     column and its neighbours whose run is at least ``min_len`` px long (Table 1's stop).
     Status: OK, BORDER (the marker reaches the image border or the edge windows would),
-    LOW_CONTRAST (fewer than 20 grey levels between inside and outside).
+    LOW_CONTRAST (less than MIN_CONTRAST between inside and outside, linear x 255).
     """
     H, W = img.shape[0], img.shape[1]
     empty = np.empty((0, 2))
@@ -156,7 +157,7 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     w = chroma_direction(inside[0], inside[1], inside[2])  # the marker's own chroma
     s_in, s_out = _levels(img, a, n, dx, top, bottom, gap, lut, w)
     contrast = s_in - s_out
-    if contrast < 20.0:
+    if contrast < MIN_CONTRAST:
         return LOW_CONTRAST, area, n, contrast, empty, empty
     u = np.empty((n, 2))
     d = np.empty((n, 2))
