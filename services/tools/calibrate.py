@@ -35,14 +35,8 @@ def cmd_pattern(args: argparse.Namespace) -> int:
         print(f"shepherd: a {args.lines}-line grid at {args.pitch_mm} mm does not fit on A4",
               file=sys.stderr)
         return 2
-    out = Path(args.out)
-    try:
-        sheet.write(out, args.dpi)
-    except ValueError as err:
-        print(f"shepherd: {err}", file=sys.stderr)
-        return 2
-    print(f"wrote {out}: {sheet.caption()}")
-    return 0
+    from services.tools.marker import save_sheet
+    return save_sheet(sheet, Path(args.out), args.dpi)
 
 
 def cmd_intrinsics(args: argparse.Namespace) -> int:

@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from typing import Any
 
 
 def add_marker_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[type-arg]
@@ -82,9 +83,14 @@ def cmd_sheet(args: argparse.Namespace) -> int:
         print(f"shepherd: {err}", file=sys.stderr)
         return 2
     sheet = MarkerSheet(width_mm=1000 * g.marker_width_m, height_mm=1000 * g.marker_height_m)
-    out = Path(args.out)
+    return save_sheet(sheet, Path(args.out), args.dpi)
+
+
+def save_sheet(sheet: Any, out: Path, dpi: float) -> int:
+    """Write a printable sheet (``write(path, dpi)``, ``caption()``) and say so; exit code 2
+    with the reason when it cannot be written."""
     try:
-        sheet.write(out, args.dpi)
+        sheet.write(out, dpi)
     except ValueError as err:
         print(f"shepherd: {err}", file=sys.stderr)
         return 2
