@@ -19,6 +19,8 @@ FiniteFloat = Annotated[float, Field(allow_inf_nan=False)]
 Coord = Annotated[float, Field(allow_inf_nan=False, ge=-1e4, le=1e4)]
 Vec2 = tuple[FiniteFloat, FiniteFloat]
 CoordXY = tuple[Coord, Coord]
+#: a 2x2 covariance in px^2 (rows), e.g. of a vertex's (u, v)
+Cov2 = tuple[tuple[FiniteFloat, FiniteFloat], tuple[FiniteFloat, FiniteFloat]]
 Vec3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 Row3 = tuple[FiniteFloat, FiniteFloat, FiniteFloat]
 
@@ -137,6 +139,11 @@ class MarkerVertices(Message):
     reason: str = ""
     width: int = Field(default=0, ge=0, description="image width the vertices refer to")
     height: int = Field(default=0, ge=0)
+    vertices_cov_px2: tuple[Cov2, Cov2, Cov2, Cov2] | None = Field(
+        default=None,
+        description="per-vertex 2x2 covariance of (u, v) in px^2, same order as vertices_px; "
+        "null when the extractor does not estimate it",
+    )
 
 
 
