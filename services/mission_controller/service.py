@@ -2,11 +2,15 @@
 
 Subscribes ``humanoid/pose`` (latest), ``mission/goal`` and ``mission/hold``; at ``rate_hz``
 decides a command and publishes it on ``ir/command`` when it changes (and every
-``keepalive_s``); publishes ``mission/state``. Sends ``stop`` at shutdown.
+``keepalive_s``); publishes ``mission/state``. Sends ``stop`` at shutdown. Each command carries
+this run's session id, a sequence number and the monotonic clock, by which the IR transmitter
+judges its freshness (issue 20).
 """
 
 from __future__ import annotations
 
+import itertools
+import secrets
 import time
 from typing import Literal
 
@@ -53,10 +57,15 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
     hold = False
     origin: tuple[float, float] | None = None  # where the current leg started (loop)
     ticker = Ticker(1.0 / config.rate_hz)
+    session, seq = secrets.token_hex(8), itertools.count()
+
+    def stamped(cmd: Command) -> IrCommand:
+        return IrCommand(command=cmd, session=session, seq=next(seq),
+                         sent_mono_ns=time.monotonic_ns())
 
     def send(cmd: Command) -> None:
         nonlocal last_cmd, last_sent
-        bus.put(IR_COMMAND, IrCommand(command=cmd))
+        bus.put(IR_COMMAND, stamped(cmd))
         if cmd is not last_cmd:
             log.info("command %s", cmd.value)
         last_cmd, last_sent = cmd, time.monotonic()
@@ -105,4 +114,4 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                     ctrl.set_waypoints(back)
             await ticker.wait()
     finally:
-        bus.put(IR_COMMAND, IrCommand(command=Command.STOP))
+        bus.put(IR_COMMAND, stamped(Command.STOP))
