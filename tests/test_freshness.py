@@ -9,9 +9,11 @@ import time
 
 import pytest
 
-from schemas import Command, IrBackendStatus, IrCommand
+from schemas import Command, IrBackendStatus, IrCommand, Phase
 from schemas.keys import IR_BACKEND, IR_COMMAND, SIM_IR
 from services.ir_transmitter.freshness import FreshnessGate, FreshnessParams
+from services.mission_controller.controller import HeuristicController
+from services.mission_controller.pose_freshness import PoseFreshness
 from services.runtime.clock import LagFloor
 from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
@@ -171,3 +173,37 @@ def test_a_burst_delivered_after_a_gap_never_reaches_the_humanoid(router: str, m
     assert status.not_fresh["rearming"] >= 7
     print(f"\ndead-man stop {1000 * stop_after_s:.0f} ms after the cut; walking again "
           f"{1000 * (after[0][0] - heal):.0f} ms after the heal; not sent: {status.not_fresh}")
+
+
+def _poses(fresh: PoseFreshness, t0: float, t1: float, delay_s: float = 0.05,
+           offset_s: float = -77.0) -> None:
+    """Poses captured every 1/30 s from t0 to t1 on a host ``offset_s`` off, arriving
+    ``delay_s`` later."""
+    t = t0
+    while t < t1 - 1e-9:
+        fresh.arrived(int((t + offset_s) * 1e9), int((t + delay_s) * 1e9))
+        t += 1 / 30
+
+
+def test_the_controller_does_not_steer_by_poses_held_during_a_cut():
+    fresh = PoseFreshness(timeout_s=0.3, rearm_s=0.3)
+    _poses(fresh, 0.0, 2.0)
+    assert fresh.why_stale(int(2.06e9)) == ""
+    # a 5 s cut: the poses captured at its start were held and arrive at once at 7.0
+    for i in range(20):
+        fresh.arrived(int((2.0 + i / 30 - 77.0) * 1e9), int((7.0 + 0.0002 * i) * 1e9))
+    assert fresh.age_s(int(7.01e9)) < 0.3  # young by its arrival...
+    assert "later than the stream's fastest" in fresh.why_stale(int(7.01e9))  # ...yet held
+    # the live poses follow; the controller waits rearm_s of them
+    _poses(fresh, 7.0, 7.2, delay_s=0.05)
+    assert "waiting" in fresh.why_stale(int(7.25e9))
+    _poses(fresh, 7.2, 7.5, delay_s=0.05)
+    assert fresh.why_stale(int(7.55e9)) == ""
+
+
+def test_the_controller_stops_on_a_held_pose_through_the_service_path():
+    ctrl = HeuristicController()
+    ctrl.set_waypoints([(1.0, 0.0)])
+    assert ctrl.decide((0.0, 0.0, 0.0), 0.05, False, 0.0).command is WALK
+    d = ctrl.decide((0.0, 0.0, 0.0), 0.01, False, 0.1, stale="pose arrived 4900 ms late")
+    assert d.command is STOP and d.phase is Phase.WAITING_POSE and "4900" in d.reason

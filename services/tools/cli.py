@@ -85,7 +85,8 @@ def cmd_router(args: argparse.Namespace) -> int:
     # a native config's own listen endpoints (e.g. TLS) hold unless --listen replaces them
     listen = args.listen or ([] if args.config else ["tcp/0.0.0.0:7447"])
     settings = ZenohSettings(mode="router", listen=listen, multicast_scouting=False,
-                             config_file=Path(args.config) if args.config else None)
+                             config_file=Path(args.config) if args.config else None,
+                             lease_s=args.lease)
     try:
         session = zenoh.open(zenoh_config(settings))
     except (zenoh.ZError, FileNotFoundError) as err:
@@ -242,6 +243,9 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("router", help="run a Zenoh router (no zenohd needed)")
     p.add_argument("--listen", "-l", action="append", default=[], metavar="EP")
     p.add_argument("--config", help="native Zenoh config file (TLS, auth, ACL)")
+    p.add_argument("--lease", type=float, metavar="S", help=(
+        "the lease (s) announced to the robot's and laptop's sessions: a partitioned link "
+        "closes after this long (Zenoh's default 10 s; the split deployments use 1.5 s)"))
     p.add_argument("--duration", type=float, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_router)
 
