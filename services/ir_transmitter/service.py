@@ -207,7 +207,11 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                 commands.recv())
             req_task: asyncio.Future[IrBackendRequest] = asyncio.ensure_future(requests.recv())
             pending = {cmd_task, req_task}
-            done, _ = await asyncio.wait(pending, timeout=config.heartbeat_s,
+            wake_s = config.heartbeat_s  # sooner when the dead-man is due
+            if config.deadman_s and tx.moving:
+                wake_s = min(wake_s, max(0.01, config.deadman_s
+                                         - (time.monotonic() - last_command) + 0.005))
+            done, _ = await asyncio.wait(pending, timeout=wake_s,
                                          return_when=asyncio.FIRST_COMPLETED)
             for task in (cmd_task, req_task):
                 if task not in done:

@@ -204,6 +204,24 @@ def cmd_soak(args: argparse.Namespace) -> int:
     return asyncio.run(soak(dep, args.minutes, args.sample_s))
 
 
+def cmd_partition(args: argparse.Namespace) -> int:
+    from services.tools import partition
+    why = partition.unavailable()
+    if why:
+        print(f"shepherd: cannot cut a link here: {why}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    reports = []
+    for way in args.ways.split(","):
+        r = partition.run(way, out / way, cut_s=args.cut, flaps=args.flaps)
+        reports.append(r)
+        print(partition.summary([r]).splitlines()[-1], flush=True)
+    table = partition.summary(reports)
+    (out / "report.md").write_text(table + "\n")
+    print(table)
+    return 0 if all(not r.failures() for r in reports) else 1
+
+
 def cmd_experiments(args: argparse.Namespace) -> int:
     from services.tools.experiments import run
     return run(Path(args.out), quick=args.quick)
@@ -313,6 +331,15 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sample-s", type=float, default=60.0, help="memory sampling period")
     p.add_argument("--listen", "-l", action="append", default=[], metavar="EP")
     p.set_defaults(func=cmd_soak)
+
+    p = sub.add_parser("partition", help=(
+        "cut a real link between a simulated robot and laptop (root: network namespaces)"))
+    p.add_argument("--ways", default="down,drop,laptop",
+                   help="how to cut, comma-separated: down, drop, laptop")
+    p.add_argument("--cut", type=float, default=5.0, help="the first cut (s)")
+    p.add_argument("--flaps", type=int, default=10, help="then this many 1 s down / 2 s up")
+    p.add_argument("--out", default="partition", help="folder for logs and report.md")
+    p.set_defaults(func=cmd_partition)
 
     p = sub.add_parser("experiments", help="the paper's experiments in simulation: report")
     p.add_argument("--out", default="experiments", help="folder for report.md and plots")
