@@ -298,13 +298,14 @@ def run(way: str, workdir: Path, *, cut_s: float = 5.0, flaps: int = 10, down_s:
                 link.heal(way)
                 report.cuts.append((t_cut, time.monotonic()))
                 time.sleep(up_s if i < len(plan) - 1 else 0.0)
+            laptop_rss = _tree_rss_kb(laptop_proc.pid)  # it exits when the mission is done
             try:
                 laptop_proc.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:
                 report.notes.append(f"the laptop did not finish within {timeout_s:.0f} s")
             report.completed = laptop_proc.returncode == 0
             done_t = time.monotonic()
-            rss1 = {"robot": _tree_rss_kb(procs[1].pid), "laptop": rss0["laptop"]}
+            rss1 = {"robot": _tree_rss_kb(procs[1].pid), "laptop": laptop_rss}
             report.memory_growth = {k: (rss1[k] - rss0[k]) / rss0[k] for k in rss0 if rss0[k]}
         if report.completed:
             report.done_after_last_heal_s = done_t - report.cuts[-1][1]
