@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import json
 import os
 import re
@@ -168,6 +169,7 @@ class Report:
     oldest_motion_s: float = 0.0
     moved_late_m: list[float] = field(default_factory=list)  # moved > 1.5 s after last motion
     coast_m: list[float] = field(default_factory=list)
+    still_after_last_motion_s: list[float] = field(default_factory=list)  # per cut
     fresh_pose_after_heal_s: list[float] = field(default_factory=list)
     completed: bool = False
     done_after_last_heal_s: float | None = None
@@ -312,6 +314,7 @@ def run(way: str, workdir: Path, *, cut_s: float = 5.0, flaps: int = 10, down_s:
     logs = "".join(p.read_text(errors="replace") for p in workdir.glob("*.log"))
     report.restarts = len(re.findall(r"restarting in", logs))
     _measure(report, _records(workdir / "robot.jsonl"), _records(workdir / "laptop.jsonl"))
+    (workdir / "report.json").write_text(json.dumps(dataclasses.asdict(report), indent=1))
     return report
 
 
@@ -347,6 +350,12 @@ def _measure(report: Report, robot: list[dict[str, object]], laptop: list[dict[s
                 moved = max(abs(x - quiet[0][0]) + abs(y - quiet[0][1]) for x, y in quiet)
                 if moved > 0.002:
                     report.moved_late_m.append(round(moved, 3))
+            during = [(t, x, y) for t, x, y in truth if last_motion <= t <= t_heal]
+            if during:
+                _, xe, ye = during[-1]
+                moving = [t for t, x, y in during if abs(x - xe) + abs(y - ye) > 0.001]
+                report.still_after_last_motion_s.append(
+                    round((max(moving) if moving else last_motion) - last_motion, 2))
             at_cut = [(x, y) for t, x, y in truth if t <= t_cut]
             in_cut = [(x, y) for t, x, y in truth if t_cut <= t <= t_heal]
             if at_cut and in_cut:
@@ -369,9 +378,10 @@ def summary(reports: list[Report]) -> str:
     def span(v: list[float]) -> str:
         return f"{min(v):.2f}-{max(v):.2f}" if v else "-"
     lines = ["| way | cuts | stop after cut (s) | token gone after cut (s) | motion cmds "
-             "(> 0.5 s old) | oldest motion (s) | coast (cm) | fresh pose after heal (s) | "
+             "(> 0.5 s old) | oldest motion (s) | coast (cm) | moving after the last motion "
+             "command (s) | fresh pose after heal (s) | "
              "done after last heal (s) | restarts | memory | holds |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in reports:
         mem = ", ".join(f"{k} {100 * g:+.0f}%" for k, g in r.memory_growth.items())
         done = f"{r.done_after_last_heal_s:.0f}" if r.done_after_last_heal_s else "not done"
@@ -379,6 +389,7 @@ def summary(reports: list[Report]) -> str:
             f"| {r.way} | {len(r.cuts)} | {span(r.stop_after_cut_s)} | "
             f"{span(r.token_gone_after_cut_s)} | {r.motion_sent} ({len(r.stale_motion)}) | "
             f"{r.oldest_motion_s:.2f} | {span([100 * c for c in r.coast_m])} | "
+            f"{span(r.still_after_last_motion_s)} | "
             f"{span(r.fresh_pose_after_heal_s)} | {done} | {r.restarts} | {mem} | "
             f"{'yes' if not r.failures() else '; '.join(r.failures())} |")
     return "\n".join(lines)
