@@ -171,7 +171,8 @@ class Report:
     coast_m: list[float] = field(default_factory=list)
     still_after_last_motion_s: list[float] = field(default_factory=list)  # per cut
     fresh_pose_after_heal_s: list[float] = field(default_factory=list)
-    completed: bool = False
+    completed: bool = False           # the controller reached the goal (the monitor's summary)
+    final_error_cm: float | None = None  # by the simulator's truth
     done_after_last_heal_s: float | None = None
     restarts: int = 0
     memory_growth: dict[str, float] = field(default_factory=dict)
@@ -305,12 +306,15 @@ def run(way: str, workdir: Path, *, cut_s: float = 5.0, flaps: int = 10, down_s:
                 laptop_proc.wait(timeout=timeout_s)
             except subprocess.TimeoutExpired:
                 report.notes.append(f"the laptop did not finish within {timeout_s:.0f} s")
-            report.completed = laptop_proc.returncode == 0
             done_t = time.monotonic()
             rss1 = {"robot": _tree_rss_kb(procs[1].pid), "laptop": laptop_rss}
             report.memory_growth = {k: (rss1[k] - rss0[k]) / rss0[k] for k in rss0 if rss0[k]}
-        if report.completed:
-            report.done_after_last_heal_s = done_t - report.cuts[-1][1]
+    laptop_log = (workdir / "laptop.log").read_text(errors="replace")
+    report.completed = "Mission summary" in laptop_log  # printed once the goal is reached
+    if report.completed:
+        report.done_after_last_heal_s = done_t - report.cuts[-1][1]
+    if found := re.search(r"final error\s+([\d.]+) cm \(truth\)", laptop_log):
+        report.final_error_cm = float(found.group(1))
     logs = "".join(p.read_text(errors="replace") for p in workdir.glob("*.log"))
     report.restarts = len(re.findall(r"restarting in", logs))
     _measure(report, _records(workdir / "robot.jsonl"), _records(workdir / "laptop.jsonl"))
@@ -380,8 +384,8 @@ def summary(reports: list[Report]) -> str:
     lines = ["| way | cuts | stop after cut (s) | token gone after cut (s) | motion cmds "
              "(> 0.5 s old) | oldest motion (s) | coast (cm) | moving after the last motion "
              "command (s) | fresh pose after heal (s) | "
-             "done after last heal (s) | restarts | memory | holds |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "done after last heal (s) | final error (cm) | restarts | memory | holds |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in reports:
         mem = ", ".join(f"{k} {100 * g:+.0f}%" for k, g in r.memory_growth.items())
         done = f"{r.done_after_last_heal_s:.0f}" if r.done_after_last_heal_s else "not done"
@@ -390,7 +394,8 @@ def summary(reports: list[Report]) -> str:
             f"{span(r.token_gone_after_cut_s)} | {r.motion_sent} ({len(r.stale_motion)}) | "
             f"{r.oldest_motion_s:.2f} | {span([100 * c for c in r.coast_m])} | "
             f"{span(r.still_after_last_motion_s)} | "
-            f"{span(r.fresh_pose_after_heal_s)} | {done} | {r.restarts} | {mem} | "
+            f"{span(r.fresh_pose_after_heal_s)} | {done} | {r.final_error_cm} | {r.restarts} | "
+            f"{mem} | "
             f"{'yes' if not r.failures() else '; '.join(r.failures())} |")
     return "\n".join(lines)
 
