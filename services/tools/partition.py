@@ -109,9 +109,9 @@ class Link:
         else:
             raise ValueError(f"unknown way {way!r}; expected one of {', '.join(WAYS)}")
 
-    def spawn(self, ns: str, args: list[str], log: Path, cwd: Path) -> subprocess.Popen[bytes]:
-        env = {**os.environ, "PYTHONUNBUFFERED": "1",
-               "PYTHONPATH": os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")])}
+    def spawn(self, ns: str, args: list[str], log: Path, cwd: Path, code: Path = ROOT
+              ) -> subprocess.Popen[bytes]:
+        env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": str(code)}
         with open(log, "wb") as out:
             return subprocess.Popen(["ip", "netns", "exec", ns, sys.executable, *args],
                                     stdout=out, stderr=subprocess.STDOUT, cwd=cwd, env=env,
@@ -136,15 +136,20 @@ async def probe(connect: str, out: Path) -> None:
         truth = bus.subscribe_stamped(SIM_TRUTH, SimTruth, clock=time.monotonic_ns)
         poses = bus.subscribe_stamped(HUMANOID_POSE, HumanoidPose, clock=time.monotonic_ns)
         alive = bus.subscribe_liveliness(bus.keys.alive("mission_controller"))
+        def sent_s(c: IrCommand) -> float:
+            """When the controller sent it, on the monotonic clock (from its Unix stamp for
+            a controller that does not stamp sent_mono_ns: the namespaces share clocks)."""
+            if c.sent_mono_ns is not None:
+                return c.sent_mono_ns / 1e9
+            return c.stamp_ns / 1e9 - (time.time() - time.monotonic())
+
         while True:
             for t, c in iter(ir.get_nowait, None):
                 f.write(json.dumps({"k": "ir", "t": t / 1e9, "cmd": c.command.value,
-                                    "sent": None if c.sent_mono_ns is None
-                                    else c.sent_mono_ns / 1e9}) + "\n")
+                                    "sent": sent_s(c)}) + "\n")
             for t, c in iter(decided.get_nowait, None):
-                if c.sent_mono_ns is not None:
-                    f.write(json.dumps({"k": "cmd", "t": t / 1e9, "cmd": c.command.value,
-                                        "sent": c.sent_mono_ns / 1e9}) + "\n")
+                f.write(json.dumps({"k": "cmd", "t": t / 1e9, "cmd": c.command.value,
+                                    "sent": sent_s(c)}) + "\n")
             for t, s in iter(truth.get_nowait, None):
                 f.write(json.dumps({"k": "truth", "t": t / 1e9, "x": s.humanoid.x,
                                     "y": s.humanoid.y}) + "\n")
@@ -256,8 +261,11 @@ def _stopping(procs: list[subprocess.Popen[bytes]]) -> Iterator[None]:
 
 
 def run(way: str, workdir: Path, *, cut_s: float = 5.0, flaps: int = 10, down_s: float = 1.0,
-        up_s: float = 2.0, ahead_m: float = 1.5, timeout_s: float = 240.0) -> Report:
-    """One run: start both halves, cut once, flap, let the mission finish; measure."""
+        up_s: float = 2.0, ahead_m: float = 1.5, timeout_s: float = 240.0,
+        code: Path = ROOT, lease_s: float | None = LEASE_S) -> Report:
+    """One run: start both halves, cut once, flap, let the mission finish; measure.
+    ``code``: the Shepherd checkout whose services and deployment files run (another one to
+    measure it before a change: ``lease_s=None`` when its router has no ``--lease``)."""
     if way not in WAYS:
         raise ValueError(f"unknown way {way!r}; expected one of {', '.join(WAYS)}")
     workdir.mkdir(parents=True, exist_ok=True)
@@ -265,25 +273,27 @@ def run(way: str, workdir: Path, *, cut_s: float = 5.0, flaps: int = 10, down_s:
     laptop_toml = workdir / "laptop.toml"
     start_x = 0.29  # deploy/sim-robot.toml leaves the simulator's default start
     text = re.sub(r"waypoints = \[\[.*?\]\]", f"waypoints = [[{start_x + ahead_m:.2f}, 0.0]]",
-                  (ROOT / "deploy/sim-laptop.toml").read_text(), count=1)
+                  (code / "deploy/sim-laptop.toml").read_text(), count=1)
     laptop_toml.write_text(text)
     with Link() as link:
         ep = f"tcp/{link.robot_ip}:{PORT}"
         cli = ["-m", "services.tools.cli", "--log-level", "WARNING"]
         me = ["-m", "services.tools.partition", "probe", ep]
-        procs = [link.spawn(link.robot, [*cli, "router", "--listen", ep, "--lease", str(LEASE_S)],
-                            workdir / "router.log", workdir)]
+        lease = [] if lease_s is None else ["--lease", str(lease_s)]
+        procs = [link.spawn(link.robot, [*cli, "router", "--listen", ep, *lease],
+                            workdir / "router.log", workdir, code)]
         with _stopping(procs):
             time.sleep(1.0)
-            procs.append(link.spawn(link.robot, [*cli, "run", str(ROOT / "deploy/sim-robot.toml"),
-                                                 "--connect", ep], workdir / "robot.log", workdir))
+            procs.append(link.spawn(link.robot, [*cli, "run", str(code / "deploy/sim-robot.toml"),
+                                                 "--connect", ep], workdir / "robot.log", workdir,
+                                    code))
             procs.append(link.spawn(link.robot, [*me, str(workdir / "robot.jsonl")],
                                     workdir / "probe-robot.log", workdir))
             procs.append(link.spawn(link.laptop, [*me, str(workdir / "laptop.jsonl")],
                                     workdir / "probe-laptop.log", workdir))
             laptop_proc = link.spawn(link.laptop, [*cli, "run", str(laptop_toml), "--connect", ep,
                                                    "--duration", str(timeout_s)],
-                                     workdir / "laptop.log", workdir)
+                                     workdir / "laptop.log", workdir, code)
             procs.append(laptop_proc)
             robot_jsonl = workdir / "robot.jsonl"
 
