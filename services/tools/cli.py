@@ -211,6 +211,15 @@ def cmd_partition(args: argparse.Namespace) -> int:
         print(f"shepherd: cannot cut a link here: {why}", file=sys.stderr)
         return 2
     out = Path(args.out)
+    if args.stalls:
+        durations = [0.5, 1.0, 1.3, 1.7, 2.5]
+        print("| stall (s) | " + " | ".join(f"{d:.1f}" for d in durations) + " |")
+        print("|---|" + "---|" * len(durations))
+        for lease in (partition.LEASE_S, None):
+            got = partition.stalls(lease, durations, out / f"stalls-{lease or 'default'}")
+            name = f"lease {lease} s" if lease else "Zenoh's default lease"
+            print(f"| {name} | " + " | ".join(f"{g:.2f}" for g in got) + " |", flush=True)
+        return 0
     reports = []
     for way in args.ways.split(","):
         r = partition.run(way, out / way, cut_s=args.cut, flaps=args.flaps)
@@ -339,6 +348,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--cut", type=float, default=5.0, help="the first cut (s)")
     p.add_argument("--flaps", type=int, default=10, help="then this many 1 s down / 2 s up")
     p.add_argument("--out", default="partition", help="folder for logs and report.md")
+    p.add_argument("--stalls", action="store_true", help=(
+        "instead: what a short lease costs, as the time from the end of silent stalls of "
+        "0.5-2.5 s to the first fresh message, with the split deployments' lease and Zenoh's"))
     p.set_defaults(func=cmd_partition)
 
     p = sub.add_parser("experiments", help="the paper's experiments in simulation: report")

@@ -27,7 +27,7 @@ import signal
 import subprocess
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -233,10 +233,10 @@ def _records(path: Path) -> list[dict[str, object]]:
     return out
 
 
-def _wait_for(pred: object, timeout: float, what: str) -> None:
+def _wait_for(pred: Callable[[], bool], timeout: float, what: str) -> None:
     end = time.monotonic() + timeout
     while time.monotonic() < end:
-        if pred():  # type: ignore[operator]
+        if pred():
             return
         time.sleep(0.1)
     raise TimeoutError(f"{what} not within {timeout:.0f} s")
@@ -283,7 +283,8 @@ def run(way: str, workdir: Path, *, cut_s: float = 5.0, flaps: int = 10, down_s:
         procs = [link.spawn(link.robot, [*cli, "router", "--listen", ep, *lease],
                             workdir / "router.log", workdir, code)]
         with _stopping(procs):
-            time.sleep(1.0)
+            _wait_for(lambda: "listening" in (workdir / "router.log").read_text(), 30,
+                      "the router")
             procs.append(link.spawn(link.robot, [*cli, "run", str(code / "deploy/sim-robot.toml"),
                                                  "--connect", ep], workdir / "robot.log", workdir,
                                     code))
@@ -418,6 +419,65 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     print("usage: python -m services.tools.partition probe ENDPOINT OUT.jsonl", file=sys.stderr)
     return 2
+
+
+# -- what a short lease costs: stalls on the link ---------------------------------------------
+
+_STALL_PEER = """
+import sys, time
+import zenoh
+from services.runtime.session import ZenohSettings, zenoh_config
+lease = None if sys.argv[3] == "none" else float(sys.argv[3])
+s = zenoh.open(zenoh_config(ZenohSettings(mode="client", connect=[sys.argv[1]],
+                                          multicast_scouting=False, lease_s=lease)))
+if sys.argv[2] == "pub":
+    while True:
+        s.put("stall/t", repr(time.monotonic()))
+        time.sleep(0.05)
+else:
+    s.declare_subscriber("stall/t", lambda m: print(time.monotonic(), m.payload.to_string(),
+                                                    flush=True))
+    time.sleep(3600)
+"""
+
+
+def stalls(lease_s: float | None, durations_s: list[float], workdir: Path) -> list[float]:
+    """For each silent stall (both ways dropped) of the link: seconds from the heal to the
+    first message *sent after it* arriving across (20 Hz publisher on the robot, subscriber on
+    the laptop, both clients of the robot's router announcing ``lease_s``; None: Zenoh's)."""
+    workdir.mkdir(parents=True, exist_ok=True)
+    lease = "none" if lease_s is None else str(lease_s)
+    with Link("s" + str(os.getpid())) as link:
+        ep = f"tcp/{link.robot_ip}:{PORT}"
+        router = ["-m", "services.tools.cli", "router", "--listen", ep]
+        procs = [link.spawn(link.robot, router + ([] if lease_s is None else
+                                                  ["--lease", lease]),
+                            workdir / "router.log", workdir)]
+        with _stopping(procs):
+            _wait_for(lambda: "listening" in (workdir / "router.log").read_text(), 30,
+                      "the router")
+            procs.append(link.spawn(link.robot, ["-c", _STALL_PEER, ep, "pub", lease],
+                                    workdir / "pub.log", workdir))
+            procs.append(link.spawn(link.laptop, ["-c", _STALL_PEER, ep, "sub", lease],
+                                    workdir / "sub.log", workdir))
+            time.sleep(3.0)
+            heals = []
+            for d in durations_s:
+                link.cut("drop")
+                time.sleep(d)
+                link.heal("drop")
+                heals.append(time.monotonic())
+                time.sleep(6.0)
+    rows = []
+    for line in (workdir / "sub.log").read_text().splitlines():
+        with contextlib.suppress(ValueError):
+            got, sent = (float(v) for v in line.split())
+            rows.append((got, sent))
+    out = []
+    for heal in heals:
+        after = [got for got, sent in rows if sent >= heal]
+        out.append(round(min(after) - heal, 2) if after else float("inf"))
+    return out
 
 
 if __name__ == "__main__":
