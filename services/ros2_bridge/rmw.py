@@ -5,7 +5,9 @@ inside: strings and bytes only).
   the hash in RIHS01 form (or ``TypeHashNotSupported``, as Humble writes).
 - Payload: CDR, little-endian, with its 4-byte encapsulation header (rosbags does it).
 - Attachment: int64 sequence number and int64 source time (ns), little-endian, then the 16-byte
-  publisher GID preceded by its LEB128 length (0x10): 33 bytes.
+  publisher GID preceded by its LEB128 length (0x10): 33 bytes. The GID is the entity's:
+  XXH3-128 of its liveliness token, low then high 64 bits, little-endian
+  (rmw_zenoh_cpp ``liveliness::Entity``).
 - Discovery: liveliness tokens ``@ros2_lv/<domain>/<zid>/<nid>/<eid>/<kind>/<enclave>/<ns>/
   <node>[/<topic>/<type>/<hash>/<qos>]``, '/' inside names written '%' and '%' for empty.
 """
@@ -17,6 +19,7 @@ from dataclasses import dataclass
 from functools import cache
 from typing import Any, Literal
 
+import xxhash
 from rosbags.typesys import Stores, get_typestore
 
 NO_HASH = "TypeHashNotSupported"
@@ -84,6 +87,13 @@ def entity_token(domain_id: int, zid: str, node_id: int, entity_id: int,
     return (f"@ros2_lv/{domain_id}/{zid}/{node_id}/{entity_id}/{kind}/{mangle(enclave)}/"
             f"{mangle(namespace)}/{node}/{mangle(topic)}/{dds_type_name(ros_type)}/"
             f"{type_hash(ros_type, with_hash)}/{qos.key()}")
+
+
+def entity_gid(token: str) -> bytes:
+    """The 16-byte GID rmw_zenoh gives the entity with this liveliness token (what
+    ``ros2 topic info -v`` and ``message_info.publisher_gid`` show)."""
+    h = xxhash.xxh3_128_intdigest(token.encode())
+    return (h & 0xFFFF_FFFF_FFFF_FFFF).to_bytes(8, "little") + (h >> 64).to_bytes(8, "little")
 
 
 def pack_attachment(sequence: int, source_time_ns: int, gid: bytes) -> bytes:

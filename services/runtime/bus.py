@@ -26,6 +26,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 import zenoh
+import zenoh.ext
 from pydantic import ValidationError
 
 from schemas import FrameEncoding, FrameHeader, Keys, Message, describe_validation_error
@@ -118,9 +119,13 @@ class Bus:
         token = self.session.liveliness().declare_token(key_expr)
         self._closers.append(token.undeclare)
 
-    def raw_publisher(self, key_expr: str) -> Any:
-        """A Zenoh publisher on any key (for foreign wire formats), undeclared with the bus."""
-        pub = self.session.declare_publisher(key_expr)
+    def raw_publisher(self, key_expr: str, *, cache: int = 0) -> Any:
+        """A Zenoh publisher on any key (for foreign wire formats), undeclared with the bus;
+        ``cache`` > 0: a zenoh-ext advanced publisher keeping that many samples for late
+        subscribers (and detectable by them)."""
+        pub = (zenoh.ext.declare_advanced_publisher(
+            self.session, key_expr, cache=zenoh.ext.CacheConfig(max_samples=cache),
+            publisher_detection=True) if cache > 0 else self.session.declare_publisher(key_expr))
         self._closers.append(pub.undeclare)
         return pub
 
