@@ -6,6 +6,7 @@ metres.
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import Any
 
@@ -22,6 +23,7 @@ TF = "tf2_msgs/msg/TFMessage"
 ODOMETRY = "nav_msgs/msg/Odometry"
 IMAGE = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+LOG = "rcl_interfaces/msg/Log"
 #: variance given to z, roll and pitch of a floor pose (fixed by the floor: tiny, not zero,
 #: so that viewers can invert the matrix)
 FLOOR_VARIANCE = 1e-9
@@ -152,3 +154,11 @@ def camera_info(k: CameraIntrinsics, stamp_ns_: int, frame_id: str) -> Any:
         k=K.reshape(9), r=np.eye(3).reshape(9), p=P.reshape(12), binning_x=0, binning_y=0,
         roi=_t("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0,
                                                    do_rectify=False))
+
+
+def log_message(record: logging.LogRecord) -> Any:
+    """rcl_interfaces/Log of a Python log record (its levels are ROS's: 10 DEBUG ... 50 FATAL)."""
+    return _t(LOG)(stamp=stamp(int(record.created * 1e9)),
+                   level=min(50, max(10, record.levelno // 10 * 10)), name=record.name,
+                   msg=record.getMessage(), file=record.pathname, function=record.funcName,
+                   line=record.lineno)

@@ -44,11 +44,18 @@ def type_hash(ros_type: str, with_hash: bool = True) -> str:
     return str(typestore().hash_rihs01(ros_type)) if with_hash else NO_HASH
 
 
-def data_key(domain_id: int, topic: str, ros_type: str, with_hash: bool = True) -> str:
-    """The Zenoh key of a ROS 2 topic's samples."""
+def data_key(domain_id: int, topic: str, ros_type: str, with_hash: bool = True,
+             hash_: str | None = None) -> str:
+    """The Zenoh key of a ROS 2 topic's samples (or of a service's queries, with the service
+    type and its ``hash_``)."""
     if not topic.startswith("/") or "//" in topic or topic.endswith("/"):
         raise ValueError(f"ROS topic {topic!r} must be absolute, like /shepherd/humanoid/pose")
-    return f"{domain_id}/{topic[1:]}/{dds_type_name(ros_type)}/{type_hash(ros_type, with_hash)}"
+    return (f"{domain_id}/{topic[1:]}/{dds_type_name(ros_type)}/"
+            f"{_hash(ros_type, with_hash, hash_)}")
+
+
+def _hash(ros_type: str, with_hash: bool, hash_: str | None) -> str:
+    return NO_HASH if not with_hash else hash_ or type_hash(ros_type)
 
 
 def mangle(name: str) -> str:
@@ -64,12 +71,14 @@ class Qos:
     reliability: Literal["reliable", "best_effort"] = "reliable"
     durability: Literal["volatile", "transient_local"] = "volatile"
     depth: int = 10
+    lifespan_s: int = 0  # 0: infinite
 
     def key(self) -> str:
         rel = "" if self.reliability == "reliable" else "2"
         dur = "" if self.durability == "volatile" else "1"
         depth = "" if self.depth == 42 else str(self.depth)
-        return f"{rel}:{dur}:,{depth}:,:,:,,"
+        lifespan = f"{self.lifespan_s}," if self.lifespan_s else ","
+        return f"{rel}:{dur}:,{depth}:,:{lifespan}:,,"
 
 
 def node_token(domain_id: int, zid: str, node_id: int, node: str, namespace: str = "/",
@@ -80,13 +89,14 @@ def node_token(domain_id: int, zid: str, node_id: int, node: str, namespace: str
 
 
 def entity_token(domain_id: int, zid: str, node_id: int, entity_id: int,
-                 kind: Literal["MP", "MS"], node: str, topic: str, ros_type: str,
+                 kind: Literal["MP", "MS", "SS"], node: str, topic: str, ros_type: str,
                  qos: Qos, *, namespace: str = "/", enclave: str = "/",
-                 with_hash: bool = True) -> str:
-    """The ``MP`` (publisher) or ``MS`` (subscription) token of a topic endpoint."""
+                 with_hash: bool = True, hash_: str | None = None) -> str:
+    """The ``MP`` (publisher), ``MS`` (subscription) or ``SS`` (service server) token of an
+    endpoint."""
     return (f"@ros2_lv/{domain_id}/{zid}/{node_id}/{entity_id}/{kind}/{mangle(enclave)}/"
             f"{mangle(namespace)}/{node}/{mangle(topic)}/{dds_type_name(ros_type)}/"
-            f"{type_hash(ros_type, with_hash)}/{qos.key()}")
+            f"{_hash(ros_type, with_hash, hash_)}/{qos.key()}")
 
 
 def entity_gid(token: str) -> bytes:

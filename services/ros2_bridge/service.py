@@ -9,12 +9,16 @@ drives Nav2); optionally the camera image (CompressedImage) and its CameraInfo i
 frame, rate-limited. In: nav_msgs/Odometry on ``odom_topic`` -> ``camera/odom``; a PoseStamped
 on ``mission_goal_topic`` -> ``mission/goal``, each moved into the world from its frame (one
 the bridge cannot reach is refused, naming it). Every endpoint is announced with rmw_zenoh's
-liveliness tokens, so ``ros2 node list``, ``ros2 topic list`` and rviz2 see it.
+liveliness tokens, so ``ros2 node list``, ``ros2 topic list`` and rviz2 see it. Shepherd's
+log records at WARNING and above go to /rosout (rcl_interfaces/Log; those of services in this
+process); the parameter services (list, get, describe, types; read-only) answer with these
+settings, so ``ros2 param list /shepherd_bridge`` works.
 """
 
 from __future__ import annotations
 
 import asyncio
+import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -25,7 +29,7 @@ from pydantic import Field, model_validator
 
 from schemas import CameraGoal, CameraIntrinsics, FrameEncoding, HumanoidPose
 from schemas.keys import CAMERA_GOAL, HUMANOID_POSE, INTRINSICS, MISSION_GOAL, ODOM
-from services.ros2_bridge import convert, rmw
+from services.ros2_bridge import convert, params, rmw, rosout
 from services.ros2_bridge.frames import FrameNames, Tree, UnknownFrameError
 from services.runtime.bus import Bus
 from services.runtime.clock import Ticker
@@ -115,14 +119,42 @@ class RosNode:
         return rmw.data_key(c.domain_id, topic, ros_type, c.type_hash), token
 
     def publisher(self, topic: str, ros_type: str, depth: int = 10,
-                  transient_local: bool = False) -> RosPublisher:
+                  transient_local: bool = False, lifespan_s: int = 0) -> RosPublisher:
         """A publisher; ``transient_local`` keeps the last ``depth`` samples for late joiners
         as rmw_zenoh does (a zenoh-ext advanced publisher with a cache, detectable)."""
         qos = rmw.Qos(durability="transient_local" if transient_local else "volatile",
-                      depth=depth)
+                      depth=depth, lifespan_s=lifespan_s)
         key, token = self._announce("MP", topic, ros_type, qos)
         publisher = self.bus.raw_publisher(key, cache=depth if transient_local else 0)
         return RosPublisher(publisher, ros_type, rmw.entity_gid(token))
+
+    def service(self, name: str, srv_type: str, hash_: str,
+                answer: Callable[[Any], Any]) -> None:
+        """A service server as rmw_zenoh's: a complete queryable on the service's key (any
+        type hash: Humble clients too); each request's CDR answered with ``answer``'s, the
+        reply carrying the request's sequence number and client GID."""
+        self.entities += 1
+        c = self.config
+        self.bus.declare_token(rmw.entity_token(
+            c.domain_id, self.zid, 0, self.entities, "SS", c.node, name, srv_type,
+            rmw.Qos(depth=10), with_hash=c.type_hash, hash_=hash_))
+        key = rmw.data_key(c.domain_id, name, srv_type, c.type_hash, hash_)
+        rejections = self.bus.rejections
+
+        def on_query(query: Any) -> None:
+            try:
+                if query.attachment is None or query.payload is None:
+                    raise ValueError("a service request needs its payload and attachment")
+                sequence, _, client_gid = rmw.unpack_attachment(query.attachment.to_bytes())
+                response = answer(rmw.deserialize(query.payload.to_bytes(),
+                                                  f"{srv_type}_Request"))
+                query.reply(query.key_expr, rmw.serialize(response, f"{srv_type}_Response"),
+                            attachment=rmw.pack_attachment(sequence, time.time_ns(),
+                                                           client_gid))
+            except Exception as err:
+                rejections.add(key, f"bad service request: {type(err).__name__}: {err}")
+
+        self.bus.raw_queryable(key.rsplit("/", 1)[0] + "/*", on_query)
 
     def subscription(self, topic: str, ros_type: str, depth: int = 10) -> Any:
         """Samples of ``topic`` from any publisher of its type (any hash: Humble's too)."""
@@ -155,6 +187,16 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
         info_out = node.publisher(f"/{ns}/camera/camera_info", convert.CAMERA_INFO, depth=1)
         frames = bus.subscribe_frames()
         tasks.append(asyncio.create_task(_follow_intrinsics(bus, camera_info)))
+    rosout_out = node.publisher("/rosout", convert.LOG, depth=rosout.DEPTH,
+                                transient_local=True, lifespan_s=10)
+    rosout_handler = rosout.RosoutHandler()
+    logging.getLogger("shepherd").addHandler(rosout_handler)
+    parameters = params.Parameters(
+        config.model_dump(), {n: f.description or "" for n, f in Settings.model_fields.items()})
+    for service, (srv_type, request, response) in params.PARAMETER_SERVICES.items():
+        node.service(f"/{config.node}/{service}", srv_type,
+                     params.service_type_hash(srv_type, request, response),
+                     parameters.handler(service))
     static_ns = time.time_ns()
     tf_static_out.publish(convert.tf_message([
         convert.transform_T(static_ns, parent, child, T)
@@ -175,6 +217,8 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                 assert p.x is not None and p.y is not None and p.yaw is not None
                 tf_out.publish(convert.tf_message([convert.transform(
                     p.stamp_ns, names.world, names.humanoid, p.x, p.y, p.yaw)]))
+            for record in rosout_handler.drain():
+                rosout_out.publish(convert.log_message(record))
             if (g := goals.get_nowait()) is not None:
                 goal_out.publish(convert.camera_goal(g, tree, goal_frame))
             while (sample := odom_in.get_nowait()) is not None:
@@ -199,6 +243,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                         last_image = now
             await ticker.wait()
     finally:
+        logging.getLogger("shepherd").removeHandler(rosout_handler)
         for task in tasks:
             task.cancel()
 

@@ -129,6 +129,12 @@ class Bus:
         self._closers.append(pub.undeclare)
         return pub
 
+    def raw_queryable(self, key_expr: str, on_query: Callable[[zenoh.Query], None]) -> None:
+        """A complete Zenoh queryable on any key (for foreign wire formats), undeclared with
+        the bus; ``on_query`` runs on Zenoh's thread."""
+        q = self.session.declare_queryable(key_expr, on_query, complete=True)
+        self._closers.append(q.undeclare)
+
     def declare_alive(self) -> None:
         """Declare the liveliness token ``alive/<service>`` until this bus closes."""
         token = self.session.liveliness().declare_token(self.keys.alive(self.service))
