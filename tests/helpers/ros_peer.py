@@ -6,11 +6,15 @@ Left to itself the SDK git-clones the ROS message repositories to find the ``.ms
 offline (CI has no such network) it is handed the definitions from rosbags' own store, written
 out as ``<pkg>/msg/<Name>.msg`` (and the few ``.srv`` files rosbags lacks, as ROS ships them),
 and cloning is made to fail loudly. The SDK is a process-wide singleton: ``open_peer`` points
-it at one router and ``close`` resets it.
+it at one router and ``close`` resets it. Its session is a Zenoh client of the router: as a
+peer it meets each new session directly, and a one-shot liveliness query it makes meanwhile
+(as its transient-local subscriber does once, at creation) came back empty about one time in
+two; rmw_zenoh's own subscribers follow liveliness instead of asking once.
 """
 
 from __future__ import annotations
 
+import os
 from collections.abc import Iterable
 from pathlib import Path
 from typing import Any
@@ -70,7 +74,11 @@ def open_peer(root: Path, router: str, ros_types: Iterable[str]) -> Any:
     registry._registry = registry.MessageRegistry(str(root))
     host, port = router.removeprefix("tcp/").rsplit(":", 1)
     ZenohSession._instance = None
-    return ZenohSession.get_instance(host, int(port))
+    os.environ["ZENOH_CONFIG_OVERRIDE"] = 'mode="client"'
+    try:
+        return ZenohSession.get_instance(host, int(port))
+    finally:
+        del os.environ["ZENOH_CONFIG_OVERRIDE"]
 
 
 def close_peer() -> None:
