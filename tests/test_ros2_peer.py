@@ -12,6 +12,7 @@ so its hash of rcl_interfaces/ParameterDescriptor, and of DescribeParameters, is
 from __future__ import annotations
 
 import asyncio
+import functools
 import math
 import threading
 import time
@@ -303,3 +304,92 @@ def test_the_peer_sees_one_tf_tree_and_shepherds_values(router, make_bus, peer):
     assert in_map[0].waypoints == [pytest.approx((0.9, -0.1))]
     reasons = stats.rejected[rmw.data_key(0, "/shepherd/mission/goal", convert.POSE)]
     assert len(reasons) == 1 and "frame 'base_footprint'" in next(iter(reasons))
+
+
+@pytest.mark.slow
+def test_the_peer_reads_rosout_and_the_parameters(router, make_bus, peer):
+    from zenoh_ros2_sdk import ROS2Publisher, ROS2ServiceClient, ROS2Subscriber
+    from zenoh_ros2_sdk.qos import QosDurability, QosProfile
+    dep = parse_deployment({
+        "zenoh": {"connect": [router], "multicast_scouting": False},
+        "services": {"ros2_bridge": {"goal_frame": "odom", "T_world_odom": list(T_WORLD_ODOM),
+                                     "mission_goal_topic": "/shepherd/mission/goal"}}})
+    host, port = router.removeprefix("tcp/").rsplit(":", 1)
+    where = {"router_ip": host, "router_port": int(port)}
+    bus = make_bus("shepherd")
+    got = Received()
+    rosout_gids: list[bytes] = []
+    raw = peer.session.declare_subscriber(
+        rmw.data_key(0, "/rosout", convert.LOG),
+        lambda s: rosout_gids.append(rmw.unpack_attachment(s.attachment.to_bytes())[2]))
+    endpoints: list[Any] = []
+    answers: dict[str, Any] = {}
+
+    async def go() -> list[str]:
+        task = asyncio.create_task(run_deployment(dep, duration=30))
+        await wait_alive_async(bus.session, "ros2_bridge")
+        mission = ROS2Publisher("/shepherd/mission/goal", convert.POSE, node_name="rviz", **where)
+        endpoints.append(mission)
+        await asyncio.sleep(0.5)  # the bridge matches the peer's publisher
+        T = rmw.typestore().types
+        mission.publish(header=convert.header(STAMP, "base_footprint"), pose=T[
+            "geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](
+                x=0.9, y=-0.1, z=0.0), orientation=convert.yaw_quaternion(0.0)))
+        await _until(lambda: rosout_gids, "the warning on /rosout")
+        # a late rqt_console still gets it: /rosout is transient-local, as rcl's
+        endpoints.append(await asyncio.to_thread(
+            ROS2Subscriber, "/rosout", convert.LOG, got.on("/rosout"),
+            qos=QosProfile(durability=QosDurability.TRANSIENT_LOCAL, history_depth=1000),
+            **where))
+        await _until(lambda: got.get("/rosout"), "/rosout from the cache")
+        for name, kwargs in (("list_parameters", {"prefixes": [], "depth": 0}),
+                             ("get_parameters", {"names": ["goal_frame", "T_world_odom",
+                                                           "image_hz", "pose_topic"]}),
+                             ("get_parameter_types", {"names": ["goal_frame", "image"]})):
+            srv_type = params.PARAMETER_SERVICES[name][0]
+            client = await asyncio.to_thread(
+                ROS2ServiceClient, f"/shepherd_bridge/{name}", srv_type, timeout=5.0, **where)
+            endpoints.append(client)
+            answers[name] = await asyncio.to_thread(functools.partial(client.call, **kwargs))
+        # DescribeParameters: the peer's hash of it is wrong (see the module's docstring), so
+        # it is given the right one, as a ROS 2 client has it
+        describe, request, response = params.PARAMETER_SERVICES["describe_parameters"]
+        client = await asyncio.to_thread(
+            ROS2ServiceClient, "/shepherd_bridge/describe_parameters", describe, timeout=5.0,
+            type_hash=params.service_type_hash(describe, request, response), **where)
+        endpoints.append(client)
+        answers["describe_parameters"] = await asyncio.to_thread(
+            functools.partial(client.call, names=["goal_frame"]))
+        tokens = [str(r.ok.key_expr) for r in await asyncio.to_thread(
+            lambda: list(peer.liveliness.get("@ros2_lv/0/**", timeout=1.0))) if r.ok]
+        task.cancel()
+        return tokens
+
+    try:
+        tokens = asyncio.run(go())
+    finally:
+        for e in endpoints:
+            e.close()
+        raw.undeclare()
+
+    log = got.get("/rosout")[0]
+    assert log.level == 30 and log.name == "shepherd.ros2_bridge"
+    assert "frame 'base_footprint'" in log.msg
+    # the GID in the attachment is the one rmw_zenoh derives from the publisher's token
+    rosout_token = next(t for t in tokens if "/MP/" in t and "/%rosout/" in t)
+    assert rosout_token.endswith("/:1:,1000:,:10,:,,")  # rcl's rosout QoS: lifespan 10 s
+    assert set(rosout_gids) == {rmw.entity_gid(rosout_token)}
+    assert sum("/SS/%/%/shepherd_bridge/%shepherd_bridge%" in t for t in tokens) == 4
+
+    names = list(answers["list_parameters"].result.names)
+    assert {"goal_frame", "T_world_odom", "world_frame", "odom_topic"} <= set(names)
+    goal_frame, t_world_odom, image_hz, pose_topic = answers["get_parameters"].values
+    assert (goal_frame.type, goal_frame.string_value) == (params.STRING, "odom")
+    assert t_world_odom.type == params.DOUBLE_ARRAY
+    assert list(t_world_odom.double_array_value) == pytest.approx(T_WORLD_ODOM)
+    assert (image_hz.type, image_hz.double_value) == (params.DOUBLE, 5.0)
+    assert pose_topic.type == params.NOT_SET
+    assert list(answers["get_parameter_types"].types) == [params.STRING, params.BOOL]
+    descriptor, = answers["describe_parameters"].descriptors
+    assert descriptor.read_only and descriptor.name == "goal_frame"
+    assert "frame outgoing goals" in descriptor.description

@@ -21,13 +21,16 @@ from typing import Any
 
 from services.ros2_bridge import rmw
 
-#: The services of ROS 2's parameter interface (rcl_interfaces/srv, Jazzy), as shipped.
+#: The services of ROS 2's parameter interface (rcl_interfaces/srv, Jazzy), as shipped but for
+#: the message types' full names (the SDK's rosbags would resolve a short name in a .srv into
+#: ``rcl_interfaces/srv/msg/...``).
 SRV_DEFINITIONS = {
     "ListParameters": (
         "uint64 DEPTH_RECURSIVE=0\nstring[] prefixes\nuint64 depth\n---\n"
-        "ListParametersResult result\n"),
-    "GetParameters": "string[] names\n---\nParameterValue[] values\n",
-    "DescribeParameters": "string[] names\n---\nParameterDescriptor[] descriptors\n",
+        "rcl_interfaces/msg/ListParametersResult result\n"),
+    "GetParameters": "string[] names\n---\nrcl_interfaces/msg/ParameterValue[] values\n",
+    "DescribeParameters": (
+        "string[] names\n---\nrcl_interfaces/msg/ParameterDescriptor[] descriptors\n"),
     "GetParameterTypes": "string[] names\n---\nuint8[] types\n",
 }
 _SEPARATOR = "=" * 80 + "\nMSG: "
