@@ -7,6 +7,7 @@ import asyncio
 import math
 import struct
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
@@ -321,3 +322,26 @@ def test_the_camera_image_and_its_info_reach_ros_rate_limited(router, make_bus, 
     assert decoded.shape == (480, 640, 3)
     info = rmw.deserialize(got["info"][-1], convert.CAMERA_INFO)
     assert (info.width, info.height) == (640, 480) and info.k[0] == pytest.approx(757.25)
+
+
+def test_the_rviz2_view_shows_what_the_robot_deployment_publishes():
+    import yaml
+
+    from services.ros2_bridge.service import Settings
+    from services.runtime.config import load_deployment
+    root = Path(__file__).resolve().parent.parent
+    view = yaml.safe_load((root / "deploy" / "ros2" / "shepherd.rviz").read_text())
+    dep = load_deployment(root / "deploy" / "robot-ros2.toml")
+    config = dep.settings_for("ros2_bridge")
+    assert isinstance(config, Settings)
+    ns = dep.namespace
+    manager = view["Visualization Manager"]
+    assert manager["Global Options"]["Fixed Frame"] == config.world_frame
+    topics = {d["Class"].rsplit("/", 1)[1]: d["Topic"]["Value"] for d in manager["Displays"]
+              if "Topic" in d}
+    assert topics == {
+        "PoseWithCovariance": config.pose_topic or f"/{ns}/humanoid/pose",
+        "Pose": config.goal_topic, "Image": f"/{ns}/camera/image/compressed"}
+    assert config.image
+    tool, = (t for t in manager["Tools"] if t["Class"].endswith("SetGoal"))
+    assert tool["Topic"]["Value"] == config.mission_goal_topic
