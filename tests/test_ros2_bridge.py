@@ -345,3 +345,40 @@ def test_the_rviz2_view_shows_what_the_robot_deployment_publishes():
     assert config.image
     tool, = (t for t in manager["Tools"] if t["Class"].endswith("SetGoal"))
     assert tool["Topic"]["Value"] == config.mission_goal_topic
+
+
+def test_with_odom_tf_the_simulated_robot_joins_the_tree(router, make_bus, sessions):
+    # the simulator's camera/odom is Shepherd's own: published as odom -> base_link, and no
+    # odometry taken from ROS (nothing to re-publish)
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"ros2_bridge": {"odom_tf": True,
+                                                         "T_world_odom": [1.0, 2.0, 0.5]}}})
+    bus = make_bus("sim")
+    ros = sessions()
+    samples: list[bytes] = []
+    sub = ros.declare_subscriber(rmw.data_key(0, "/tf", convert.TF),
+                                 lambda s: samples.append(s.payload.to_bytes()))
+
+    async def go() -> list[str]:
+        task = asyncio.create_task(run_deployment(dep, duration=15))
+        await wait_alive_async(bus.session, "ros2_bridge")
+        await asyncio.sleep(0.3)
+        bus.put(ODOM, CameraPose(stamp_ns=7, x=1.5, y=2.0, yaw=0.25))
+        for _ in range(100):
+            if samples:
+                break
+            await asyncio.sleep(0.05)
+        tokens = [str(r.ok.key_expr) for r in await asyncio.to_thread(
+            lambda: list(ros.liveliness().get("@ros2_lv/0/**", timeout=1.0))) if r.ok]
+        task.cancel()
+        return tokens
+    tokens = asyncio.run(go())
+    sub.undeclare()
+    t, = rmw.deserialize(samples[0], convert.TF).transforms
+    assert (t.header.frame_id, t.child_frame_id) == ("odom", "base_link")
+    # (1.5, 2) in the world: 0.5 m along the world's x from odom's origin, seen from odom
+    # (turned 0.5 rad); heading 0.25 - 0.5
+    assert t.transform.translation.x == pytest.approx(0.5 * math.cos(0.5))
+    assert t.transform.translation.y == pytest.approx(-0.5 * math.sin(0.5))
+    assert convert.quaternion_yaw(t.transform.rotation) == pytest.approx(-0.25)
+    assert not any("/MS/" in k and "/%odom/" in k for k in tokens)

@@ -27,7 +27,7 @@ from typing import Any, Literal
 import cv2
 from pydantic import Field, model_validator
 
-from schemas import CameraGoal, CameraIntrinsics, FrameEncoding, HumanoidPose
+from schemas import CameraGoal, CameraIntrinsics, CameraPose, FrameEncoding, HumanoidPose
 from schemas.keys import CAMERA_GOAL, HUMANOID_POSE, INTRINSICS, MISSION_GOAL, ODOM
 from services.ros2_bridge import convert, params, rmw, rosout
 from services.ros2_bridge.frames import FrameNames, Tree, UnknownFrameError
@@ -56,6 +56,10 @@ class Settings(ServiceSettings):
     goal_topic: str | None = Field(default=None, description=(
         "default /<namespace>/camera/goal; /goal_pose sends it to Nav2"))
     odom_topic: str = "/odom"
+    odom_tf: bool = Field(default=False, description=(
+        "publish odom_frame -> base_frame from Shepherd's camera/odom: only where no ROS node "
+        "publishes the robot's transform (the simulator); the bridge then takes no odometry "
+        "from ROS, so it never re-publishes the robot's own"))
     T_world_odom: tuple[float, float, float] = Field(default=(0.0, 0.0, 0.0), description=(
         "the odometry frame in the world: x m, y m, yaw rad (static map -> odom)"))
     mission_goal_topic: str | None = Field(default=None, description=(
@@ -173,7 +177,9 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
     tf_out = node.publisher("/tf", convert.TF, depth=100)
     tf_static_out = node.publisher("/tf_static", convert.TF, depth=1, transient_local=True)
     goal_out = node.publisher(config.goal_topic or f"/{ns}/camera/goal", convert.POSE)
-    odom_in = node.subscription(config.odom_topic, convert.ODOMETRY)
+    odom_in = (None if config.odom_tf else
+               node.subscription(config.odom_topic, convert.ODOMETRY))
+    odoms = bus.subscribe(ODOM, CameraPose, latest=True) if config.odom_tf else None
     goal_in = (node.subscription(config.mission_goal_topic, convert.POSE)
                if config.mission_goal_topic else None)
     poses = bus.subscribe(HUMANOID_POSE, HumanoidPose, latest=True)
@@ -221,7 +227,11 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                 rosout_out.publish(convert.log_message(record))
             if (g := goals.get_nowait()) is not None:
                 goal_out.publish(convert.camera_goal(g, tree, goal_frame))
-            while (sample := odom_in.get_nowait()) is not None:
+            if odoms is not None and (o := odoms.get_nowait()) is not None:
+                x, y, yaw = tree.from_world(names.odom, (o.x, o.y, o.yaw))
+                tf_out.publish(convert.tf_message([convert.transform(
+                    o.stamp_ns, names.odom, names.base, x, y, yaw)]))
+            while odom_in is not None and (sample := odom_in.get_nowait()) is not None:
                 _take(sample, convert.ODOMETRY, lambda m: bus.put(
                     ODOM, convert.odometry_to_camera_pose(m, tree)), reject)
             while goal_in is not None and (sample := goal_in.get_nowait()) is not None:
