@@ -382,3 +382,37 @@ def test_with_odom_tf_the_simulated_robot_joins_the_tree(router, make_bus, sessi
     assert t.transform.translation.y == pytest.approx(-0.5 * math.sin(0.5))
     assert convert.quaternion_yaw(t.transform.rotation) == pytest.approx(-0.25)
     assert not any("/MS/" in k and "/%odom/" in k for k in tokens)
+
+
+def test_a_late_rmw_zenoh_subscriber_gets_tf_static_from_the_cache(router, make_bus, sessions):
+    # as rmw_zenoh subscribes to a transient-local topic: a zenoh-ext advanced subscriber that
+    # detects late publishers, queries their history and follows their heartbeat
+    import zenoh.ext
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"ros2_bridge": {}}})
+    bus = make_bus("shepherd")
+    ros = sessions()
+    got: list[bytes] = []
+
+    async def go() -> None:
+        task = asyncio.create_task(run_deployment(dep, duration=15))
+        await wait_alive_async(bus.session, "ros2_bridge")
+        await asyncio.sleep(0.3)  # well after the bridge sent /tf_static
+        sub = zenoh.ext.declare_advanced_subscriber(
+            ros, rmw.data_key(0, "/tf_static", convert.TF),
+            lambda s: got.append(s.payload.to_bytes()),
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+            recovery=zenoh.ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
+            subscriber_detection=True)
+        for _ in range(100):
+            if got:
+                break
+            await asyncio.sleep(0.05)
+        sub.undeclare()
+        task.cancel()
+    asyncio.run(go())
+    assert len(got) == 1
+    edges = [(t.header.frame_id, t.child_frame_id)
+             for t in rmw.deserialize(got[0], convert.TF).transforms]
+    assert edges == [("map", "odom"), ("base_link", "camera_link"),
+                     ("camera_link", "camera_optical_frame")]

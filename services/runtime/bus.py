@@ -122,10 +122,14 @@ class Bus:
     def raw_publisher(self, key_expr: str, *, cache: int = 0) -> Any:
         """A Zenoh publisher on any key (for foreign wire formats), undeclared with the bus;
         ``cache`` > 0: a zenoh-ext advanced publisher keeping that many samples for late
-        subscribers (and detectable by them)."""
+        subscribers, detectable by them, with a sporadic heartbeat (0.5 s) for their
+        recovery of missed samples (rmw_zenoh's reliable transient-local publisher)."""
         pub = (zenoh.ext.declare_advanced_publisher(
             self.session, key_expr, cache=zenoh.ext.CacheConfig(max_samples=cache),
-            publisher_detection=True) if cache > 0 else self.session.declare_publisher(key_expr))
+            publisher_detection=True,
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None,
+                                                                sporadic_heartbeat=0.5))
+            if cache > 0 else self.session.declare_publisher(key_expr))
         self._closers.append(pub.undeclare)
         return pub
 
