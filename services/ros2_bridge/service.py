@@ -197,12 +197,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                                 transient_local=True, lifespan_s=10)
     rosout_handler = rosout.RosoutHandler()
     logging.getLogger("shepherd").addHandler(rosout_handler)
-    parameters = params.Parameters(
-        config.model_dump(), {n: f.description or "" for n, f in Settings.model_fields.items()})
-    for service, (srv_type, request, response) in params.PARAMETER_SERVICES.items():
-        node.service(f"/{config.node}/{service}", srv_type,
-                     params.service_type_hash(srv_type, request, response),
-                     parameters.handler(service))
+    _serve_parameters(node, config)
     static_ns = time.time_ns()
     tf_static_out.publish(convert.tf_message([
         convert.transform_T(static_ns, parent, child, T)
@@ -256,6 +251,16 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
         logging.getLogger("shepherd").removeHandler(rosout_handler)
         for task in tasks:
             task.cancel()
+
+
+def _serve_parameters(node: RosNode, config: Settings) -> None:
+    """ROS 2's read parameter services of ``/<node>``, answered with ``config``."""
+    parameters = params.Parameters(
+        config.model_dump(), {n: f.description or "" for n, f in Settings.model_fields.items()})
+    for service, (srv_type, request, response) in params.PARAMETER_SERVICES.items():
+        node.service(f"/{config.node}/{service}", srv_type,
+                     params.service_type_hash(srv_type, request, response),
+                     parameters.handler(service))
 
 
 def _take(sample: Any, ros_type: str, use: Callable[[Any], None],
