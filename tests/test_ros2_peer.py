@@ -393,3 +393,39 @@ def test_the_peer_reads_rosout_and_the_parameters(router, make_bus, peer):
     descriptor, = answers["describe_parameters"].descriptors
     assert descriptor.read_only and descriptor.name == "goal_frame"
     assert "frame outgoing goals" in descriptor.description
+
+
+@pytest.mark.slow
+def test_humble_mode_serves_the_peer_without_type_hashes(router, make_bus, peer):
+    from zenoh_ros2_sdk import ROS2ServiceClient, ROS2Subscriber
+    from zenoh_ros2_sdk.qos import QosDurability, QosProfile
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"ros2_bridge": {"type_hash": False}}})
+    host, port = router.removeprefix("tcp/").rsplit(":", 1)
+    where = {"router_ip": host, "router_port": int(port), "type_hash": rmw.NO_HASH}
+    bus = make_bus("shepherd")
+    got = Received()
+    endpoints: list[Any] = []
+
+    async def go() -> Any:
+        task = asyncio.create_task(run_deployment(dep, duration=30))
+        await wait_alive_async(bus.session, "ros2_bridge")
+        endpoints.append(await asyncio.to_thread(
+            ROS2Subscriber, "/tf_static", convert.TF, got.on("/tf_static"),
+            qos=QosProfile(durability=QosDurability.TRANSIENT_LOCAL, history_depth=1), **where))
+        await _until(lambda: got.get("/tf_static"), "/tf_static (Humble) from the cache")
+        client = await asyncio.to_thread(
+            ROS2ServiceClient, "/shepherd_bridge/list_parameters",
+            params.PARAMETER_SERVICES["list_parameters"][0], timeout=5.0, **where)
+        endpoints.append(client)
+        answer = await asyncio.to_thread(functools.partial(client.call, prefixes=[], depth=0))
+        task.cancel()
+        return answer
+
+    try:
+        answer = asyncio.run(go())
+    finally:
+        for e in endpoints:
+            e.close()
+    assert len(got.get("/tf_static")[0].transforms) == 3
+    assert "type_hash" in answer.result.names
