@@ -27,6 +27,9 @@ class ZenohSettings(BaseModel):
     local_delivery: bool = Field(default=True, description=(
         "services sharing a session take each other's messages in-process (still published "
         "to Zenoh for everyone else)"))
+    timestamping: bool = Field(default=True, description=(
+        "stamp samples with the session's clock, as rmw_zenoh does: zenoh-ext's cached "
+        "(transient-local) publishers need it, e.g. the ROS 2 bridge's /tf_static"))
 
 
 class Limits(BaseModel):
@@ -50,6 +53,7 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
         conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps(settings.mode))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
+    conf.insert_json5("timestamping/enabled", json.dumps(settings.timestamping))
     if settings.connect:
         conf.insert_json5("connect/endpoints", json.dumps(settings.connect))
     if settings.listen:
