@@ -321,6 +321,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_calibrate_parser(sub)
     from services.tools.marker import add_marker_parser
     add_marker_parser(sub)
+    from services.tools.docs import add_docs_parser
+    add_docs_parser(sub)
     return parser
 
 
