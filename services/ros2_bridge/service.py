@@ -30,22 +30,23 @@ from services.runtime.context import ServiceContext
 
 class Settings(ServiceSettings):
     domain_id: int = Field(default=0, ge=0, le=232, description="ROS_DOMAIN_ID")
-    node: str = Field(default="shepherd_bridge", pattern=r"^[A-Za-z][A-Za-z0-9_]*$")
+    node: str = Field(default="shepherd_bridge", pattern=r"^[A-Za-z][A-Za-z0-9_]*$",
+                      description="the ROS 2 node name")
     type_hash: bool = Field(default=True, description="false for Humble (no type hashes)")
-    world_frame: str = "world"
-    humanoid_frame: str = "humanoid"
+    world_frame: str = Field(default="world", description="the frame poses are given in")
+    humanoid_frame: str = Field(default="humanoid", description="its child frame on /tf")
     camera_frame: str = Field(default="camera_base", description="the camera robot's base")
     pose_topic: str | None = Field(default=None, description="default /<namespace>/humanoid/pose")
     goal_topic: str | None = Field(default=None, description=(
         "default /<namespace>/camera/goal; /goal_pose sends it to Nav2"))
-    odom_topic: str = "/odom"
+    odom_topic: str = Field(default="/odom", description="nav_msgs/Odometry in: camera/odom")
     T_world_odom: tuple[float, float, float] = Field(default=(0.0, 0.0, 0.0), description=(
         "the odometry frame in the world: x m, y m, yaw rad"))
     mission_goal_topic: str | None = Field(default=None, description=(
         "a PoseStamped here becomes mission/goal (e.g. /shepherd/mission/goal)"))
     image: bool = Field(default=False, description="also publish the camera's image + info")
-    image_hz: float = Field(default=5.0, gt=0.0, le=60.0)
-    image_jpeg_quality: int = Field(default=80, ge=10, le=100)
+    image_hz: float = Field(default=5.0, gt=0.0, le=60.0, description="image rate out")
+    image_jpeg_quality: int = Field(default=80, ge=10, le=100, description="of the image")
 
 
 @dataclass

@@ -28,7 +28,8 @@ def _zenoh_args(p: argparse.ArgumentParser) -> None:
                    help="Zenoh endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)")
     p.add_argument("--listen", "-l", action="append", default=[], metavar="EP",
                    help="Zenoh endpoint to listen on (repeatable)")
-    p.add_argument("--mode", choices=["peer", "client"], default="peer")
+    p.add_argument("--mode", choices=["peer", "client"], default="peer",
+                   help="the Zenoh session's role")
     p.add_argument("--namespace", default="shepherd", help="key prefix (default: shepherd)")
 
 
@@ -217,13 +218,16 @@ def cmd_compile(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="shepherd", description=__doc__)
     parser.add_argument("--version", action="version", version=f"shepherd {_version()}")
-    parser.add_argument("--log-level", default="INFO")
+    parser.add_argument("--log-level", default="INFO",
+                        help="DEBUG, INFO, WARNING or ERROR")
     sub = parser.add_subparsers(dest="cmd", required=True)
 
     p = sub.add_parser("run", help="run the services a deployment file names")
     p.add_argument("file", nargs="?", help=f"deployment file (default {DEFAULT_DEPLOYMENT})")
-    p.add_argument("--connect", "-e", action="append", default=[], metavar="EP")
-    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP")
+    p.add_argument("--connect", "-e", action="append", default=[], metavar="EP",
+                   help="Zenoh endpoint to connect to, instead of the file's (repeatable)")
+    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP",
+                   help="Zenoh endpoint to listen on, instead of the file's (repeatable)")
     p.add_argument("--duration", type=float, help="stop after S seconds")
     p.add_argument("--only", action="append", default=[], metavar="NAME",
                    help="run only this service (repeatable)")
@@ -240,7 +244,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_echo)
 
     p = sub.add_parser("router", help="run a Zenoh router (no zenohd needed)")
-    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP")
+    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP",
+                   help="endpoint to listen on (default tcp/0.0.0.0:7447; repeatable)")
     p.add_argument("--config", help="native Zenoh config file (TLS, auth, ACL)")
     p.add_argument("--duration", type=float, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_router)
@@ -270,16 +275,17 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("ir", help="send an IR command or switch the IR backend")
     isub = p.add_subparsers(dest="ir_cmd", required=True)
-    s = isub.add_parser("send")
+    s = isub.add_parser("send", help="send one command to the humanoid (ir/command)")
     s.add_argument("command", choices=["walk_forward", "walk_backward", "turn_left",
-                                       "turn_right", "stop"])
+                                       "turn_right", "stop"], help="the command")
     _zenoh_args(s)
-    b = isub.add_parser("backend")
-    b.add_argument("backend", choices=["serial", "lirc", "sim", "log"])
-    b.add_argument("--port")
-    b.add_argument("--baud", type=int)
-    b.add_argument("--socket")
-    b.add_argument("--option", "-o", action="append", default=[], metavar="KEY=VALUE")
+    b = isub.add_parser("backend", help="switch the IR transmitter's backend (ir/backend)")
+    b.add_argument("backend", choices=["serial", "lirc", "sim", "log"], help="the backend")
+    b.add_argument("--port", help="serial: the device, e.g. /dev/ttyACM0")
+    b.add_argument("--baud", type=int, help="serial: the baud rate (the firmware's: 115200)")
+    b.add_argument("--socket", help="lirc: lircd's socket")
+    b.add_argument("--option", "-o", action="append", default=[], metavar="KEY=VALUE",
+                   help="any other backend option (repeatable)")
     _zenoh_args(b)
     p.set_defaults(func=cmd_ir)
 
@@ -294,7 +300,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("replay", help="publish an MCAP recording back at its recorded pace")
     p.add_argument("inp", metavar="IN.mcap")
     _zenoh_args(p)
-    p.add_argument("--speed", type=float, default=1.0)
+    p.add_argument("--speed", type=float, default=1.0, help="pace: 2 is twice as fast")
     p.add_argument("--only", action="append", default=[], metavar="KEY_EXPR",
                    help="replay only matching keys (repeatable)")
     p.add_argument("--actuate", action="store_true",
@@ -305,9 +311,10 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("soak", help="run the simulated mission back and forth; watch memory")
     p.add_argument("file", nargs="?", help=f"deployment (default {DEFAULT_DEPLOYMENT})")
-    p.add_argument("--minutes", type=float, default=30.0)
+    p.add_argument("--minutes", type=float, default=30.0, help="how long")
     p.add_argument("--sample-s", type=float, default=60.0, help="memory sampling period")
-    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP")
+    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP",
+                   help="Zenoh endpoint to listen on, instead of the file's (repeatable)")
     p.set_defaults(func=cmd_soak)
 
     p = sub.add_parser("experiments", help="the paper's experiments in simulation: report")
