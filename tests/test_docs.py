@@ -41,6 +41,18 @@ RUNNABLE_PAGES = ["getting-started.md", "hardware/ir.md", "hardware/marker.md",
 BUS_VERBS = ("echo", "record", "replay", "sim snapshot", "ir send", "ir backend",
              "mission goto", "mission stop")
 FOREGROUND_RUN_S, BACKGROUND_RUN_S = 6, 12
+#: what each page's commands must print: the product did what the page says
+EXPECTED = {
+    "getting-started.md": ["humanoid/pose: seq=", "wrote run.mcap", "replayed ",
+                           "wrote frame.png"],
+    "hardware/ir.md": ["IR (dry run): walk_forward 0x86"],
+    "hardware/marker.md": ["wrote marker.pdf", "wrote marker.png"],
+    "hardware/camera.md": ["wrote grid.pdf"],
+    "hardware/ink.md": ["wrote shot1.png", "wrote ink.toml"],
+    "deployments/robot-laptop.md": ["running sim, vertex_extractor",
+                                    "running mission_controller"],
+    "deployments/secure.md": ["router.json5", "robot.json5", "laptop.json5"],
+}
 
 
 def fenced_blocks(text: str) -> list[tuple[str, str]]:
@@ -242,20 +254,24 @@ def test_the_pages_commands_run(page: str, tmp_path: Path):
     script = localise("\n".join(blocks), free_port())
     folder = scratch_folder(tmp_path / "work")
     env = shepherd_on_path(tmp_path)
-    proc = subprocess.Popen(["bash", "-e", "-c", script], cwd=folder, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
-                            start_new_session=True)
-    try:
-        out, _ = proc.communicate(timeout=180)
-    except subprocess.TimeoutExpired:
-        os.killpg(proc.pid, signal.SIGKILL)
-        out, _ = proc.communicate()
-        pytest.fail(f"{page}: timed out\n--- script\n{script}\n--- output\n{out}")
-    finally:
+    log = tmp_path / "output.txt"
+    with log.open("w") as out_file:  # a file, not a pipe: background jobs may outlive bash
+        proc = subprocess.Popen(["bash", "-e", "-c", script], cwd=folder, env=env,
+                                stdout=out_file, stderr=subprocess.STDOUT, text=True,
+                                start_new_session=True)
         try:
-            os.killpg(proc.pid, signal.SIGKILL)  # anything the script left in the background
-        except ProcessLookupError:
+            proc.wait(timeout=180)
+        except subprocess.TimeoutExpired:
             pass
+        finally:
+            try:
+                os.killpg(proc.pid, signal.SIGKILL)  # whatever the script left running
+            except ProcessLookupError:
+                pass
+            proc.wait()
+    out = log.read_text(errors="replace")
     report = f"{page}: exit {proc.returncode}\n--- script\n{script}\n--- output\n{out}"
     assert proc.returncode == 0, report
-    assert "Traceback" not in out, report
+    assert "Traceback" not in out and "shepherd: " not in out, report  # no errors
+    for expected in EXPECTED[page]:
+        assert expected in out, f"{expected!r} not printed\n{report}"
