@@ -175,8 +175,8 @@ def test_every_command_and_option_has_help():
                     if not helps.get(name):
                         out.append(f"{path} {name}")
                     out += walk(sub, f"{path} {name}")
-            elif a.help is None and a.option_strings and a.dest not in ("help",):
-                out.append(f"{path} {a.option_strings[0]}")
+            elif a.help is None:
+                out.append(f"{path} {a.option_strings[0] if a.option_strings else a.dest}")
         return out
 
     assert walk(build_parser(), "shepherd") == []

@@ -17,7 +17,7 @@ def add_calibrate_parser(sub: argparse._SubParsersAction) -> None:  # type: igno
     pat.add_argument("--dpi", type=float, default=300.0, help="for PNG")
     pat.set_defaults(func=cmd_pattern)
     intr = csub.add_parser("intrinsics", help="calibrate from images of a pattern")
-    intr.add_argument("images", nargs="+", type=Path)
+    intr.add_argument("images", nargs="+", type=Path, help="photographs of the pattern")
     intr.add_argument("--pattern", default="grid:9x9:0.02",
                       help="grid:9x9:0.02 | squares:8x8:0.0127:0.0225778 | chessboard:9x6:0.025")
     intr.add_argument("--out", type=Path, default=Path("camera.toml"),

@@ -270,6 +270,8 @@ def _command_sections(parser: argparse.ArgumentParser, path: list[str], help_tex
         out += [f"{'#' * min(len(path) + 1, 4)} shepherd {' '.join(path)}", ""]
         if help_text:
             out += [help_text[0].upper() + help_text[1:] + ".", ""]
+        if parser.description:
+            out += [" ".join(parser.description.split()), ""]
         usage = " ".join(parser.format_usage().split())
         usage = usage.removeprefix("usage: ")
         out += ["```", usage, "```", ""]
@@ -379,7 +381,8 @@ PAGES: dict[str, Callable[[], str]] = {
 
 def generate() -> dict[str, str]:
     """File name in docs/reference -> its text."""
-    return {name: page().rstrip() + "\n" for name, page in PAGES.items()}
+    pages = {name: page().rstrip() + "\n" for name, page in PAGES.items()}
+    return {name: text.replace(str(ROOT) + "/", "") for name, text in pages.items()}
 
 
 def stale(folder: Path = REFERENCE, pages: dict[str, str] | None = None) -> list[str]:
@@ -408,7 +411,7 @@ def add_docs_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[ty
     p = sub.add_parser("docs", help="regenerate the manual's reference pages from the code")
     p.add_argument("--check", action="store_true",
                    help="write nothing; exit 1 naming each stale page")
-    p.add_argument("--out", type=Path, default=REFERENCE, help="folder of the pages")
+    p.add_argument("--out", type=Path, help="folder of the pages (default: docs/reference)")
     p.add_argument("--picture", action="store_true",
                    help=f"also remake {PICTURE.relative_to(ROOT)} (runs the default mission)")
     p.add_argument("--picture-run", type=Path, metavar="RUN_DIR",
@@ -417,6 +420,7 @@ def add_docs_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[ty
 
 
 def cmd_docs(args: argparse.Namespace) -> int:
+    args.out = args.out or REFERENCE
     if args.check:
         old = stale(args.out)
         for name in old:
