@@ -234,6 +234,27 @@ def test_the_readme_is_a_front_door():
     assert "make test" in ci  # the README's test command is the one CI runs
 
 
+def test_the_picture_is_a_detected_frame_beside_the_floor_plan(tmp_path: Path):
+    import cv2
+    import numpy as np
+
+    from services.tools.picture import make_picture
+    run = tmp_path / "run"
+    run.mkdir()
+    cv2.imwrite(str(run / "floor_plan.png"), np.full((700, 700, 3), 255, np.uint8))
+    written = make_picture(tmp_path / "img" / "front.png", run)
+    assert [p.name for p in written] == ["front.png", "floor_plan.png"]  # no Fig. 9 here
+    picture = cv2.imread(str(written[0]))
+    assert picture is not None
+    assert picture.shape == (480, 640 + 12 + 480, 3)  # the frame, a gap, the plan at 480
+    caption = picture[:40, :640]
+    assert caption.mean() < 80  # the dark band of the caption
+    # the detected rhombus is drawn in green on the frame
+    green = (picture[:, :640, 1] > 180) & (picture[:, :640, 0] < 100) & \
+        (picture[:, :640, 2] < 100)
+    assert green.sum() > 500
+
+
 def test_localise_points_every_bus_command_at_the_test_port():
     script = localise("shepherd run &\nshepherd echo 'x/**' --count 3\n"
                       "shepherd router --listen tcp/127.0.0.1:7447 &\n"

@@ -431,7 +431,8 @@ def cmd_docs(args: argparse.Namespace) -> int:
           + "".join(f"\n  {p.name}" for p in written))
     if args.picture or args.picture_run:
         from services.tools.picture import make_picture
-        print(f"wrote {make_picture(PICTURE, args.picture_run)}")
+        for path in make_picture(PICTURE, args.picture_run):
+            print(f"wrote {path}")
     return 0
 
 

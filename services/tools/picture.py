@@ -2,8 +2,8 @@
 the floor plan of a run of the default mission (the monitor's ``floor_plan.png``).
 
 ``shepherd docs --picture`` runs the default deployment (``shepherd run``, about a minute) in a
-temporary folder and writes ``docs/img/front.png``; ``--picture-run DIR`` takes an existing run
-folder instead.
+temporary folder and writes ``docs/img/front.png``, with the run's Fig. 9 and floor plan beside
+it for the manual; ``--picture-run DIR`` takes an existing run folder instead.
 """
 
 from __future__ import annotations
@@ -69,14 +69,25 @@ def run_default_mission(folder: Path) -> Path:
     return runs[-1]
 
 
-def make_picture(out: Path, run_dir: Path | None = None) -> Path:
-    """Write the picture to ``out``; the default mission is run when no run folder is given."""
+#: the run's figures the manual shows beside the picture (copied into its folder)
+RUN_FIGURES = ("fig9_distance.png", "floor_plan.png")
+
+
+def make_picture(out: Path, run_dir: Path | None = None) -> list[Path]:
+    """Write the picture to ``out`` and copy the run's figures beside it; the default mission
+    is run when no run folder is given. The files written."""
     with tempfile.TemporaryDirectory() as tmp:
         run_dir = run_dir or run_default_mission(Path(tmp))
         plan = cv2.imread(str(run_dir / "floor_plan.png"))
         if plan is None:
             raise FileNotFoundError(f"{run_dir / 'floor_plan.png'}: no floor plan in the run")
         picture = side_by_side(annotated_frame(), plan)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    cv2.imwrite(str(out), picture, [cv2.IMWRITE_PNG_COMPRESSION, 9])
-    return out
+        out.parent.mkdir(parents=True, exist_ok=True)
+        cv2.imwrite(str(out), picture, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+        written = [out]
+        for name in RUN_FIGURES:
+            image = cv2.imread(str(run_dir / name))
+            if image is not None:
+                cv2.imwrite(str(out.parent / name), image, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+                written.append(out.parent / name)
+    return written
