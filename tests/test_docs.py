@@ -230,6 +230,9 @@ def test_the_readme_is_a_front_door():
     assert pictures == ["docs/img/front.png"]
     assert (ROOT / pictures[0]).stat().st_size > 10_000
     assert "make test" in text and "make run" in text
+    links = [t for t in re.findall(r"\]\(([^)#]+)(?:#[^)]*)?\)", text) if "://" not in t]
+    assert len(links) >= 10
+    assert [t for t in links if not (ROOT / t).exists()] == []  # every page it points at
     ci = (ROOT / ".ci" / "run").read_text(encoding="utf-8")
     assert "make test" in ci  # the README's test command is the one CI runs
 
