@@ -46,7 +46,8 @@ class ControlParams(BaseModel):
     settle_s: float = Field(default=0.9, ge=0.0, description="after a stop, before judging")
     correction_s: float = Field(default=0.1, ge=0.0, description=(
         "how long a correction's walk command stands before stop (one step follows)"))
-    max_corrections: int = Field(default=2, ge=0)
+    max_corrections: int = Field(default=2, ge=0,
+                                 description="single steps to correct an overshoot, at most")
     pose_timeout_s: float = Field(default=0.3, gt=0.0,
                                   description="stop when the pose arrived longer ago (s)")
 

@@ -23,7 +23,7 @@ from services.runtime.context import ServiceContext
 class Settings(ServiceSettings, ControlParams):
     """The controller's parameters (``ControlParams``) and the service loop's own."""
 
-    rate_hz: float = Field(default=10.0, gt=0.0, le=200.0)
+    rate_hz: float = Field(default=10.0, gt=0.0, le=200.0, description="decisions per second")
     waypoints: list[tuple[float, float]] = Field(default_factory=list,
                                                  description="initial mission, world m")
     pose_topic: Literal["humanoid/pose", "humanoid/pose_filtered"] = Field(

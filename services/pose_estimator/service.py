@@ -45,7 +45,7 @@ class Settings(ServiceSettings):
                                description="wait this long for odometry at the frame's stamp (s)")
     static_camera_pose: tuple[float, float, float] | None = Field(
         default=None, description="x m, y m, yaw rad of a camera that does not move")
-    refine: bool = True
+    refine: bool = Field(default=True, description="Gauss-Newton to the MAP pose")
     vertex_sigma_px: float = Field(default=VERTEX_SIGMA_PX, gt=0.0,
                                    description="vertex noise, 1-sigma px")
     tilt_sigma_deg: float = Field(default=3.0, gt=0.0, le=45.0,

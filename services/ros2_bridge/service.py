@@ -39,7 +39,8 @@ from services.runtime.context import ServiceContext
 
 class Settings(ServiceSettings):
     domain_id: int = Field(default=0, ge=0, le=232, description="ROS_DOMAIN_ID")
-    node: str = Field(default="shepherd_bridge", pattern=r"^[A-Za-z][A-Za-z0-9_]*$")
+    node: str = Field(default="shepherd_bridge", pattern=r"^[A-Za-z][A-Za-z0-9_]*$",
+                      description="the ROS 2 node name")
     type_hash: bool = Field(default=True, description="false for Humble (no type hashes)")
     world_frame: str = Field(default="map", description="Shepherd's world (REP-105 map)")
     odom_frame: str = Field(default="odom", description="the camera robot's odometry frame")
@@ -48,14 +49,14 @@ class Settings(ServiceSettings):
     camera_frame: str = Field(default="camera_link", description="the camera's body frame")
     optical_frame: str = Field(default="camera_optical_frame", description=(
         "the camera's optical frame (REP-103: x right, y down, z forward); images' frame_id"))
-    humanoid_frame: str = "humanoid"
+    humanoid_frame: str = Field(default="humanoid", description="its child frame on /tf")
     goal_frame: str | None = Field(default=None, description=(
         "the frame outgoing goals are expressed in: world_frame (default) or odom_frame "
         "(Nav2 without a map)"))
     pose_topic: str | None = Field(default=None, description="default /<namespace>/humanoid/pose")
     goal_topic: str | None = Field(default=None, description=(
         "default /<namespace>/camera/goal; /goal_pose sends it to Nav2"))
-    odom_topic: str = "/odom"
+    odom_topic: str = Field(default="/odom", description="nav_msgs/Odometry in: camera/odom")
     odom_tf: bool = Field(default=False, description=(
         "publish odom_frame -> base_frame from Shepherd's camera/odom: only where no ROS node "
         "publishes the robot's transform (the simulator); the bridge then takes no odometry "
@@ -65,8 +66,8 @@ class Settings(ServiceSettings):
     mission_goal_topic: str | None = Field(default=None, description=(
         "a PoseStamped here becomes mission/goal (e.g. /shepherd/mission/goal)"))
     image: bool = Field(default=False, description="also publish the camera's image + info")
-    image_hz: float = Field(default=5.0, gt=0.0, le=60.0)
-    image_jpeg_quality: int = Field(default=80, ge=10, le=100)
+    image_hz: float = Field(default=5.0, gt=0.0, le=60.0, description="image rate out")
+    image_jpeg_quality: int = Field(default=80, ge=10, le=100, description="of the image")
 
     def frame_names(self) -> FrameNames:
         return FrameNames(world=self.world_frame, odom=self.odom_frame, base=self.base_frame,

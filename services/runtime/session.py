@@ -19,11 +19,16 @@ class ZenohSettings(BaseModel):
     """The ``[zenoh]`` table of a deployment file."""
 
     model_config = ConfigDict(extra="forbid")
-    mode: str = Field(default="peer", pattern="^(peer|client|router)$")
-    connect: list[str] = Field(default_factory=list)
-    listen: list[str] = Field(default_factory=list)
-    multicast_scouting: bool = True
-    config_file: Path | None = None
+    mode: str = Field(default="peer", pattern="^(peer|client|router)$",
+                      description="the Zenoh session's role: peer, client or router")
+    connect: list[str] = Field(default_factory=list,
+                               description="endpoints to connect to, e.g. tcp/192.168.1.10:7447")
+    listen: list[str] = Field(default_factory=list,
+                              description="endpoints to listen on, e.g. tcp/0.0.0.0:7447")
+    multicast_scouting: bool = Field(default=True,
+                                     description="find peers by UDP multicast on the LAN")
+    config_file: Path | None = Field(default=None, description=(
+        "a native Zenoh config (JSON5: TLS, users, access control) read first"))
     local_delivery: bool = Field(default=True, description=(
         "services sharing a session take each other's messages in-process (still published "
         "to Zenoh for everyone else)"))
