@@ -283,12 +283,13 @@ def test_service_waits_briefly_for_odometry_that_trails_the_vertices():
 
 def test_service_uses_its_tilt_prior_setting(monkeypatch):
     seen: dict = {}
-    original = svc.estimate_marker_pose
+    from services.pose_estimator import sequence
+    original = sequence.estimate_marker_pose
 
     def spy(*args, **kwargs):
         seen.update(kwargs)
         return original(*args, **kwargs)
-    monkeypatch.setattr(svc, "estimate_marker_pose", spy)
+    monkeypatch.setattr(sequence, "estimate_marker_pose", spy)
     est = svc.PoseEstimator(CAM, Geometry(), svc.Settings(tilt_sigma_deg=1.5,
                                                           static_camera_pose=(0.0, 0.0, 0.0)))
     T = marker_pose(0.4, 320, 240, CAM)
@@ -427,8 +428,9 @@ def test_sequences_starting_on_either_branch_converge_to_the_truth(start_on_mirr
                 cands = estimate_marker_pose(CAM, v, PTS, up_cam=est.up_cam).candidates
                 mirror = max(cands, key=lambda c: np.linalg.norm(c[:3, :3] - T[:3, :3]))
                 true = min(cands, key=lambda c: np.linalg.norm(c[:3, :3] - T[:3, :3]))
-                est.branches.update([(mirror[:3, :3], 0.0), (true[:3, :3], 30.0)], T[:3, 3])
-                est._previous = (stamp - 33_000_000, mirror[:3, :3])
+                est.sequence.branches.update([(mirror[:3, :3], 0.0), (true[:3, :3], 30.0)],
+                                             T[:3, 3])
+                est.sequence.previous = (stamp - 33_000_000, mirror[:3, :3])
             errors = _yaw_errors(est, frames)
             late_wrong += int(np.sum(errors[30:] > 10.0))
     assert late_wrong <= 0.015 * 9 * 60, late_wrong  # of the frames after the first second

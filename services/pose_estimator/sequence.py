@@ -1,0 +1,230 @@
+"""The marker's pose over a sequence of frames (no bus inside): continuity, the two IPPE
+branches' tracks, the choice between them and an honest covariance.
+
+One frame gives the marker's pose and its 6 x 6 covariance (``estimate.estimate_marker_pose``);
+this module adds what the frames before it know:
+
+- **continuity**: the previous pose, when recent, is a weak prior on the rotation; a marker that
+  jumped (lost and found elsewhere) owes nothing to the last frame.
+- **branches**: both IPPE candidates are tracked (``branches.BranchTracker``); the estimator
+  follows the cheaper track, and re-solves on it when the frame alone chose the other.
+- **the crossing**: seen face-on from the marker's height the two candidates are yaw mirrors
+  about the line of sight, and they meet when the heading crosses it. When they are within
+  the noise of each other (``merge_sigmas`` heading sigmas) the frame's pose is their midpoint:
+  no branch to swap. When the tracks are still undecided, ``reason`` says "ambiguous" and the
+  heading variance is widened to cover the other candidate.
+- **covariance**: the frame's covariance is the Laplace approximation of the posterior: the
+  image information (per-vertex noise from the extractor when it sends it, else
+  ``vertex_sigma_px``) plus the upright prior's, plus the body's rock about its feet (the marker
+  rolls about its normal with the gait, ``rock_sigma_rad``), which moves the floor position
+  the marker implies.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from services.core.camera import CameraModel, undistort_px
+from services.pose_estimator.branches import BranchTracker, candidate_cost, rotation_angle
+from services.pose_estimator.estimate import VERTEX_SIGMA_PX, MarkerPose, estimate_marker_pose
+from services.pose_estimator.p4p import residuals_and_jacobian
+
+#: the marker's roll about its normal with the gait (1-sigma, deg): the simulator's 0.02 rad
+#: rock, sine-shaped, has an RMS of 0.8 deg
+ROCK_SIGMA_DEG = 0.8
+TILT_SIGMA_DEG = 3.0
+CONTINUITY_WINDOW_S = 0.3
+#: the extractor's vertex error through the simulated webcam, split: independent noise of each
+#: coordinate (0.016-0.036 px RMS) and a common scale (the rhombus 0.04-0.16 px larger or
+#: smaller at each vertex, with and without JPEG); the covariance's model when the extractor
+#: sends no per-vertex covariance
+NOISE_SIGMA_PX = 0.03
+SCALE_SIGMA_PX = 0.1
+
+
+@dataclass(frozen=True)
+class SequenceParams:
+    """Args:
+        continuity_window_s: use the previous pose this recent as a prior.
+        vertex_sigma_px: vertex noise (1-sigma px) when the extractor sends none.
+        tilt_sigma_rad: the upright prior: marker normal level within this.
+        refine: Gauss-Newton after IPPE.
+        rock_sigma_rad: the marker's roll about its normal from the gait (1-sigma).
+        noise_sigma_px, scale_sigma_px: the covariance's vertex noise model (see
+            ``MarkerSequence._covariance``); the estimate itself weighs the vertices with
+            ``vertex_sigma_px``.
+        merge_sigmas: candidates closer in heading than this many heading sigmas are one.
+    """
+
+    continuity_window_s: float = CONTINUITY_WINDOW_S
+    vertex_sigma_px: float = VERTEX_SIGMA_PX
+    tilt_sigma_rad: float = math.radians(TILT_SIGMA_DEG)
+    refine: bool = True
+    rock_sigma_rad: float = math.radians(ROCK_SIGMA_DEG)
+    noise_sigma_px: float = NOISE_SIGMA_PX
+    scale_sigma_px: float = SCALE_SIGMA_PX
+    merge_sigmas: float = 2.0
+
+
+@dataclass(frozen=True)
+class SequenceEstimate:
+    """The marker pose of one frame in its sequence."""
+
+    T_camera_marker: np.ndarray
+    covariance: np.ndarray   # 6 x 6 over (left rotation increment rad, translation m)
+    reprojection_px: float
+    ambiguous: bool
+    reason: str              # "" or why the heading is uncertain
+
+
+def vertex_sigma(vertices_cov_px2: object | None, fallback_px: float) -> float:
+    """One isotropic 1-sigma (px) from the extractor's four 2 x 2 covariances (the RMS of
+    their axes), or ``fallback_px`` when there are none or they are unusable."""
+    if vertices_cov_px2 is None:
+        return fallback_px
+    C = np.asarray(vertices_cov_px2, dtype=np.float64)
+    if C.shape != (4, 2, 2) or not np.isfinite(C).all():
+        return fallback_px
+    var = float(np.mean(np.trace(C, axis1=1, axis2=2))) / 2.0
+    return math.sqrt(var) if var > 1e-6 else fallback_px
+
+
+def _log_so3(R: np.ndarray) -> np.ndarray:
+    angle = rotation_angle(np.eye(3), R)
+    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
+    s = math.sin(angle)
+    return 0.5 * w if s < 1e-9 else angle / (2.0 * s) * w
+
+
+def _exp_so3(w: np.ndarray) -> np.ndarray:
+    th = float(np.linalg.norm(w))
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if th < 1e-12:
+        return np.eye(3) + K
+    return np.eye(3) + math.sin(th) / th * K + (1 - math.cos(th)) / (th * th) * (K @ K)
+
+
+def heading_about(up: np.ndarray, Ra: np.ndarray, Rb: np.ndarray) -> float:
+    """Signed angle (rad) about ``up`` from Ra's marker normal to Rb's (both projected on the
+    plane normal to ``up``)."""
+    def flat(n: np.ndarray) -> np.ndarray:
+        return n - float(n @ up) * up
+    a, b = flat(Ra[:, 2]), flat(Rb[:, 2])
+    return math.atan2(float(np.cross(a, b) @ up), float(a @ b))
+
+
+class MarkerSequence:
+    """Feed it each frame's vertices in order; it returns the marker pose of the frame."""
+
+    def __init__(self, camera: CameraModel, points: np.ndarray, up_cam: np.ndarray | None,
+                 params: SequenceParams | None = None) -> None:
+        self.camera = camera
+        self.points = points
+        self.up_cam = up_cam
+        self.params = params or SequenceParams()
+        self.branches = BranchTracker()
+        self.previous: tuple[int, np.ndarray] | None = None  # (stamp_ns, R) of the last pose
+
+    def reset(self) -> None:
+        self.branches.reset()
+        self.previous = None
+
+    def update(self, stamp_ns: int, vertices_px: np.ndarray,
+               vertices_cov_px2: object | None = None) -> SequenceEstimate:
+        """Raises PoseError when the vertices give no pose."""
+        p = self.params
+        recent = self.previous is not None and \
+            abs(stamp_ns - self.previous[0]) < p.continuity_window_s * 1e9
+        if not recent:
+            self.branches.reset()
+        v = np.asarray(vertices_px, dtype=np.float64)
+        sigma_px = vertex_sigma(vertices_cov_px2, p.vertex_sigma_px)
+
+        def solve(previous_R: np.ndarray | None, sigma_deg: float = 10.0) -> MarkerPose:
+            return estimate_marker_pose(
+                self.camera, v, self.points, up_cam=self.up_cam,
+                refine_steps=5 if p.refine else 0, sigma_px=sigma_px,
+                tilt_sigma_rad=p.tilt_sigma_rad, previous_R=previous_R,
+                continuity_sigma_rad=math.radians(sigma_deg))
+        mp = solve(self.previous[1] if recent and self.previous else None)
+        last = self.branches.position
+        if recent and last is not None and float(np.linalg.norm(
+                mp.T_camera_marker[:3, 3] - last)) > self.branches.max_move_m:
+            mp = solve(None)  # the marker jumped: an unrelated view owes nothing to the last
+        follow, ambiguous = self.branches.update([
+            (c[:3, :3], candidate_cost(self.camera, c, self.points, v, sigma_px, self.up_cam,
+                                       p.tilt_sigma_rad))
+            for c in mp.candidates], mp.T_camera_marker[:3, 3])
+        if follow is not None and rotation_angle(follow, mp.T_camera_marker[:3, :3]) > \
+                math.radians(10.0):
+            mp = solve(follow, 3.0)  # the frame alone chose the other branch: follow the track
+        T = mp.T_camera_marker.copy()
+        cov = self._covariance(T, v, sigma_px, vertices_cov_px2)
+        reason = ""
+        other = self._mirror(T[:3, :3], mp.candidates)
+        if other is not None and self.up_cam is not None:
+            up = self.up_cam
+            gap = heading_about(up, T[:3, :3], other)  # from ours to the mirror, rad
+            sigma_h = math.sqrt(max(float(up @ cov[:3, :3] @ up), 0.0))
+            if abs(gap) < p.merge_sigmas * sigma_h:
+                # within the noise: the midpoint, the half gap added to the variance
+                T[:3, :3] = _exp_so3(0.5 * gap * up) @ T[:3, :3]
+                cov[:3, :3] += (0.5 * gap) ** 2 * np.outer(up, up)
+                ambiguous = False
+            elif ambiguous:
+                cov[:3, :3] += gap ** 2 * np.outer(up, up)
+                reason = ("ambiguous: the mirror pose fits nearly as well "
+                          f"({math.degrees(abs(gap)):.1f}° away); heading sigma widened")
+        self.previous = (stamp_ns, T[:3, :3])
+        return SequenceEstimate(T, cov, mp.reprojection_px, bool(reason), reason)
+
+    def _covariance(self, T: np.ndarray, v: np.ndarray, weight_px: float,
+                    vertices_cov_px2: object | None) -> np.ndarray:
+        """6 x 6 covariance of the estimate (a weighted least squares with weight
+        ``weight_px`` plus the upright prior) under the vertex noise model: the extractor's
+        per-vertex covariances, else ``noise_sigma_px`` on each coordinate, plus a common
+        scale error of ``scale_sigma_px`` (the rhombus seen a little larger or smaller, as
+        blur, gamma and JPEG make it), plus the gait's rock about the marker normal. The
+        sandwich A^-1 B A^-1 of the Gauss-Newton normal equations."""
+        p = self.params
+        f = 0.5 * (self.camera.K[0, 0] + self.camera.K[1, 1])
+        q = undistort_px(self.camera, v)
+        R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
+        _, J = residuals_and_jacobian(R, t, np.ascontiguousarray(self.points, np.float64), q)
+        J = J * f  # px per unit of (w, t)
+        C = np.asarray(vertices_cov_px2, np.float64) if vertices_cov_px2 is not None else None
+        if C is None or C.shape != (4, 2, 2) or not np.isfinite(C).all():
+            C = np.tile(np.eye(2) * p.noise_sigma_px ** 2, (4, 1, 1))
+        S = np.zeros((8, 8))
+        for i in range(4):
+            S[2 * i:2 * i + 2, 2 * i:2 * i + 2] = C[i]
+        d = (v - v.mean(axis=0)).ravel()
+        d /= max(float(np.linalg.norm(d)), 1e-12) / 2.0  # about 1 px per vertex
+        S += p.scale_sigma_px ** 2 * np.outer(d, d)
+        A = J.T @ J / weight_px ** 2
+        B = J.T @ S @ J / weight_px ** 4
+        if self.up_cam is not None:
+            g = np.zeros(6)
+            g[:3] = np.cross(R[:, 2], self.up_cam) / p.tilt_sigma_rad  # d(n . up)/dw
+            A += np.outer(g, g)
+            B += np.outer(g, g)
+        try:
+            A_inv = np.linalg.inv(A)
+        except np.linalg.LinAlgError:
+            A_inv = np.linalg.pinv(A)
+        cov = A_inv @ B @ A_inv
+        n = R[:, 2]
+        cov[:3, :3] += p.rock_sigma_rad ** 2 * np.outer(n, n)
+        return 0.5 * (cov + cov.T)
+
+    @staticmethod
+    def _mirror(R: np.ndarray, candidates: tuple[np.ndarray, ...]) -> np.ndarray | None:
+        """The candidate on the other branch from R (None with a single candidate)."""
+        if len(candidates) < 2:
+            return None
+        far = max(candidates, key=lambda c: rotation_angle(c[:3, :3], R))
+        near = min(candidates, key=lambda c: rotation_angle(c[:3, :3], R))
+        return None if far is near else far[:3, :3]
