@@ -164,16 +164,22 @@ class MarkerSequence:
         T = mp.T_camera_marker.copy()
         cov = self._covariance(T, v, sigma_px, vertices_cov_px2)
         reason = ""
-        other = self._mirror(T[:3, :3], mp.candidates)
-        if other is not None and self.up_cam is not None:
+        pair = self._pair(T[:3, :3], mp.candidates)
+        if pair is not None and self.up_cam is not None:
             up = self.up_cam
-            gap = heading_about(up, T[:3, :3], other)  # from ours to the mirror, rad
+            near, far = pair
+            off = heading_about(up, near, T[:3, :3])  # from the nearer candidate to ours
+            gap = heading_about(up, near, far)        # from it to the mirror, rad
             sigma_h = math.sqrt(max(float(up @ cov[:3, :3] @ up), 0.0))
-            if abs(gap) < p.merge_sigmas * sigma_h:
-                # within the noise: the midpoint, the half gap added to the variance
-                T[:3, :3] = _exp_so3(0.5 * gap * up) @ T[:3, :3]
+            stuck = abs(off) > max(3.0 * sigma_h, math.radians(2.0))
+            if abs(gap) < p.merge_sigmas * sigma_h or stuck:
+                # within the noise (or the track's branch is no minimum of its own): the
+                # candidates' midpoint, the half gap added to the variance
+                T[:3, :3] = _exp_so3((0.5 * gap - off) * up) @ T[:3, :3]
                 cov[:3, :3] += (0.5 * gap) ** 2 * np.outer(up, up)
-                ambiguous = False
+                if stuck and abs(gap) >= p.merge_sigmas * sigma_h:
+                    reason = ("ambiguous: the frame and the track disagree on the branch; "
+                              f"midpoint of the two ({math.degrees(abs(gap)):.1f}° apart)")
             elif ambiguous:
                 cov[:3, :3] += gap ** 2 * np.outer(up, up)
                 reason = ("ambiguous: the mirror pose fits nearly as well "
@@ -221,10 +227,10 @@ class MarkerSequence:
         return 0.5 * (cov + cov.T)
 
     @staticmethod
-    def _mirror(R: np.ndarray, candidates: tuple[np.ndarray, ...]) -> np.ndarray | None:
-        """The candidate on the other branch from R (None with a single candidate)."""
+    def _pair(R: np.ndarray, candidates: tuple[np.ndarray, ...]
+              ) -> tuple[np.ndarray, np.ndarray] | None:
+        """(the candidate nearer R, the other), or None with a single candidate."""
         if len(candidates) < 2:
             return None
-        far = max(candidates, key=lambda c: rotation_angle(c[:3, :3], R))
-        near = min(candidates, key=lambda c: rotation_angle(c[:3, :3], R))
-        return None if far is near else far[:3, :3]
+        a, b = candidates[0][:3, :3], candidates[1][:3, :3]
+        return (a, b) if rotation_angle(a, R) <= rotation_angle(b, R) else (b, a)
