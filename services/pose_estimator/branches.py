@@ -52,6 +52,8 @@ class BranchTracker:
     max_move_m: float = 0.05
     tracks: list[_Track] = field(default_factory=list)
     position: np.ndarray | None = None
+    skipped: bool = False  # the last frame's candidates could not be told apart
+
 
     def reset(self) -> None:
         self.tracks, self.position = [], None
@@ -71,9 +73,11 @@ class BranchTracker:
                 min(rotation_angle(t.R, R) for t in self.tracks) for R, _ in candidates
         ) > self.max_jump_rad:
             self.tracks = [_Track(R, cost) for R, cost in candidates]
+            self.skipped = False
             return None, len(candidates) > 1
         else:
             order = self._assign([R for R, _ in candidates])
+            self.skipped = order is None
             if order is not None:  # a frame whose candidates do not say which is which: skip
                 for track, (R, cost) in zip(order, candidates, strict=True):
                     track.R, track.cost = R, self.forget * track.cost + cost

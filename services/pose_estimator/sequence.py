@@ -180,10 +180,12 @@ class MarkerSequence:
                 if stuck and abs(gap) >= p.merge_sigmas * sigma_h:
                     reason = ("ambiguous: the frame and the track disagree on the branch; "
                               f"midpoint of the two ({math.degrees(abs(gap)):.1f}° apart)")
-            elif ambiguous:
+            elif ambiguous or (self.branches.skipped and abs(gap) > math.radians(4.0)):
                 cov[:3, :3] += gap ** 2 * np.outer(up, up)
-                reason = ("ambiguous: the mirror pose fits nearly as well "
-                          f"({math.degrees(abs(gap)):.1f}° away); heading sigma widened")
+                why = ("the mirror pose fits nearly as well" if ambiguous else
+                       "the branches cross: which is which is unknown this frame")
+                reason = (f"ambiguous: {why} ({math.degrees(abs(gap)):.1f}° away); "
+                          "heading sigma widened")
         self.previous = (stamp_ns, T[:3, :3])
         return SequenceEstimate(T, cov, mp.reprojection_px, bool(reason), reason)
 

@@ -173,3 +173,38 @@ def track(frames: list[Frame], estimate) -> Scores:
             nees.append(float(e @ np.linalg.solve(P, e)))
     return Scores(np.array(he), np.array(pe), np.array(sg), np.array(amb, bool),
                   np.array(nees), np.array(ts), np.array(ty), len(frames))
+
+
+def standard_sequences(quick: bool = False) -> list[tuple[Sequence, bool]]:
+    """The experiment's sequences, each with whether its frames go through JPEG: walking
+    away with sway ±2, 4, 6° at 30 and 15 fps, the turn in place, random nearby poses."""
+    sways = (4.0,) if quick else (2.0, 4.0, 6.0)
+    out: list[tuple[Sequence, bool]] = []
+    for i, sway in enumerate(sways):
+        for fps in (30.0, 15.0):
+            out.append((walk_away(fps, i, sway), len(out) % 2 == 0))
+    out.append((turn_in_place(30.0, 0), True))
+    out.append((random_poses(30.0, 0, n=10 if quick else 30), False))
+    return out
+
+
+def experiment(camera: CameraModel, quick: bool = False
+               ) -> tuple[list[str], Scores | None, float]:
+    """Markdown rows (one a sequence), the scores of the first walk (for the plot) and the
+    mean NEES over all; the estimator on ``camera`` (e.g. our calibration)."""
+    from services.pose_estimator.service import PoseEstimator, Settings
+    rows, first, nees = [], None, []
+    for i, (seq, jpeg) in enumerate(standard_sequences(quick)):
+        frames = render(seq, seed=i, jpeg=jpeg)
+        est = PoseEstimator(camera, Geometry(), Settings(static_camera_pose=(0.0, 0.0, 0.0)))
+        sc = track(frames, est.estimate)
+        if first is None:
+            first = sc
+        a = np.abs(sc.heading_err_deg)
+        nees.append(sc.nees)
+        rows.append(f"| {seq.name}{', JPEG' if jpeg else ''} | {len(a)}/{sc.frames} | "
+                    f"{np.median(a):.2f}° | {np.percentile(a, 95):.2f}° | {a.max():.1f}° | "
+                    f"{int(np.sum(sc.ambiguous))} | {sc.bad()} | "
+                    f"{1000 * np.percentile(sc.position_err_m, 95):.1f} mm | "
+                    f"{np.nanmean(sc.nees):.2f} |")
+    return rows, first, float(np.nanmean(np.concatenate(nees))) if nees else float("nan")
