@@ -536,3 +536,24 @@ def test_extractor_vertex_covariance_is_used_when_present():
     seq.reset()
     loose = seq.update(stamp, v, [[[0.25, 0.0], [0.0, 0.25]]] * 4).covariance
     assert np.trace(loose[:3, :3]) > 4 * np.trace(fixed[:3, :3])
+
+
+@pytest.mark.slow
+def test_webcam_sequences_at_the_marker_height_meet_the_heading_and_covariance_goals():
+    """Walking away 15-60 cm (sway ±4°, 30 and 15 fps), turning in place to ±30° and random
+    nearby poses, rendered through the simulated webcam and the extractor."""
+    from services.data import SIM_CAMERA
+    from services.tools import pose_sequences as ps
+    nees = []
+    for i, (seq, jpeg) in enumerate(ps.standard_sequences(quick=True)):
+        est = svc.PoseEstimator(CameraModel.load(SIM_CAMERA), Geometry(), svc.Settings(
+            static_camera_pose=(0.0, 0.0, 0.0)))
+        sc = ps.track(ps.render(seq, seed=i, jpeg=jpeg), est.estimate)
+        err = np.abs(sc.heading_err_deg)
+        assert len(err) >= 0.9 * sc.frames
+        assert sc.bad(5.0) == 0, seq.name
+        if seq.name.startswith("walk"):
+            assert np.median(err) <= 0.5 and np.percentile(err, 95) <= 2.0, seq.name
+            assert np.percentile(sc.position_err_m, 95) <= 0.006, seq.name
+        nees.append(sc.nees)
+    assert 2.0 <= np.nanmean(np.concatenate(nees)) <= 4.5
