@@ -58,6 +58,14 @@ class BranchTracker:
     def reset(self) -> None:
         self.tracks, self.position = [], None
 
+    def crossed(self) -> None:
+        """The two branches met (their poses within the noise): which track continues which
+        branch is unknown from here, so the evidence gathered before counts for neither."""
+        if self.tracks:
+            low = min(t.cost for t in self.tracks)
+            for t in self.tracks:
+                t.cost = low
+
     def update(self, candidates: list[tuple[np.ndarray, float]], position: np.ndarray
                ) -> tuple[np.ndarray | None, bool]:
         """``candidates``: (rotation, cost) of each IPPE candidate this frame; ``position``:

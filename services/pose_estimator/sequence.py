@@ -41,7 +41,7 @@ CONTINUITY_WINDOW_S = 0.3
 #: coordinate (0.016-0.036 px RMS) and a common scale (the rhombus 0.04-0.16 px larger or
 #: smaller at each vertex, with and without JPEG); the covariance's model when the extractor
 #: sends no per-vertex covariance
-NOISE_SIGMA_PX = 0.03
+NOISE_SIGMA_PX = 0.025
 SCALE_SIGMA_PX = 0.1
 
 
@@ -177,6 +177,8 @@ class MarkerSequence:
                 # candidates' midpoint, the half gap added to the variance
                 T[:3, :3] = _exp_so3((0.5 * gap - off) * up) @ T[:3, :3]
                 cov[:3, :3] += (0.5 * gap) ** 2 * np.outer(up, up)
+                if abs(gap) < p.merge_sigmas * sigma_h:
+                    self.branches.crossed()
                 if stuck and abs(gap) >= p.merge_sigmas * sigma_h:
                     reason = ("ambiguous: the frame and the track disagree on the branch; "
                               f"midpoint of the two ({math.degrees(abs(gap)):.1f}° apart)")

@@ -136,7 +136,7 @@ class Scores:
     truth_yaw_deg: np.ndarray
     frames: int
 
-    def bad(self, limit_deg: float = 5.0, k: float = 3.0) -> int:
+    def bad(self, limit_deg: float = 5.0, k: float = 1.0) -> int:
         """Frames more than ``limit_deg`` off, unless ambiguous with ``k`` sigma covering."""
         off = np.abs(self.heading_err_deg) > limit_deg
         covered = self.ambiguous & (np.abs(self.heading_err_deg) <= k * self.heading_sigma_deg)
