@@ -19,6 +19,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from services.core.camera import CameraModel
+from services.pose_estimator.estimate import TILT_HUBER_SIGMAS
+from services.pose_estimator.p4p import prior_cost
 
 
 def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
@@ -115,6 +117,6 @@ def candidate_cost(camera: CameraModel, T_camera_marker: np.ndarray, points: np.
     projected = camera.project(points @ R.T + t)
     cost = float(np.sum((projected - vertices_px) ** 2)) / sigma_px ** 2
     if up_cam is not None:
-        tilt = math.asin(max(-1.0, min(1.0, float(R[:, 2] @ up_cam))))
-        cost += (tilt / tilt_sigma_rad) ** 2
+        cost += prior_cost(float(R[:, 2] @ up_cam), 1.0 / tilt_sigma_rad,
+                           math.sin(TILT_HUBER_SIGMAS * tilt_sigma_rad))
     return cost

@@ -29,13 +29,18 @@ import numpy as np
 
 from services.core.camera import CameraModel, undistort_px
 from services.pose_estimator.branches import BranchTracker, candidate_cost, rotation_angle
-from services.pose_estimator.estimate import VERTEX_SIGMA_PX, MarkerPose, estimate_marker_pose
-from services.pose_estimator.p4p import residuals_and_jacobian
+from services.pose_estimator.estimate import (
+    TILT_HUBER_SIGMAS,
+    TILT_SIGMA_DEG,
+    VERTEX_SIGMA_PX,
+    MarkerPose,
+    estimate_marker_pose,
+)
+from services.pose_estimator.p4p import huber_weight, residuals_and_jacobian
 
 #: the marker's roll about its normal with the gait (1-sigma, deg): the simulator's 0.02 rad
 #: rock, sine-shaped, has an RMS of 0.8 deg
 ROCK_SIGMA_DEG = 0.8
-TILT_SIGMA_DEG = 3.0
 CONTINUITY_WINDOW_S = 0.3
 #: the extractor's vertex error through the simulated webcam, split: independent noise of each
 #: coordinate (0.016-0.036 px RMS) and a common scale (the rhombus 0.04-0.16 px larger or
@@ -219,6 +224,8 @@ class MarkerSequence:
         if self.up_cam is not None:
             g = np.zeros(6)
             g[:3] = np.cross(R[:, 2], self.up_cam) / p.tilt_sigma_rad  # d(n . up)/dw
+            g *= math.sqrt(huber_weight(float(R[:, 2] @ self.up_cam),
+                                        math.sin(TILT_HUBER_SIGMAS * p.tilt_sigma_rad)))
             A += np.outer(g, g)
             B += np.outer(g, g)
         try:

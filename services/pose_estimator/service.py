@@ -21,6 +21,7 @@ from schemas.keys import HUMANOID_POSE, HUMANOID_POSE_FILTERED, INTRINSICS, ODOM
 from services.core.camera import CameraModel
 from services.core.geometry import T_floor, inv_T, quaternion_from_R
 from services.pose_estimator.estimate import (
+    TILT_SIGMA_DEG,
     VERTEX_SIGMA_PX,
     humanoid_floor_pose,
     up_in_camera,
@@ -34,7 +35,6 @@ from services.pose_estimator.sequence import (
     NOISE_SIGMA_PX,
     ROCK_SIGMA_DEG,
     SCALE_SIGMA_PX,
-    TILT_SIGMA_DEG,
     MarkerSequence,
     SequenceParams,
 )
