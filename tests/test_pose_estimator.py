@@ -557,3 +557,30 @@ def test_webcam_sequences_at_the_marker_height_meet_the_heading_and_covariance_g
             assert np.percentile(sc.position_err_m, 95) <= 0.006, seq.name
         nees.append(sc.nees)
     assert 2.0 <= np.nanmean(np.concatenate(nees)) <= 4.5
+
+
+def test_a_mount_pitched_off_the_deployment_file_is_detected_and_told():
+    """The camera really pitched 8° down, the file says level: the sequence estimates the
+    offset from the marker's mean lean and the service says so once."""
+    from services.core.geometry import T_base_camera
+    from services.tools.pose_sequences import turn_in_place
+    g = Geometry()
+    est = svc.PoseEstimator(CAM, g, svc.Settings(static_camera_pose=(0.0, 0.0, 0.0)))
+    T_real = T_base_camera(g.camera_forward_m, g.camera_height_m, math.radians(8.0))
+    rng = np.random.default_rng(0)
+    told = []
+    for k, (x, y, yaw, _) in enumerate(turn_in_place(30.0, 0).truth):
+        T = inv_T(T_real) @ T_floor(x, y, yaw) @ g.T_humanoid_marker()
+        v = CAM.project(PTS @ T[:3, :3].T + T[:3, 3]) + rng.normal(0, 0.05, (4, 2))
+        est.estimate(MarkerVertices(seq=k, stamp_ns=10**12 + k * 33_000_000, found=True,
+                                    vertices_px=tuple(map(tuple, v))))  # type: ignore[arg-type]
+        if warning := est.mount_warning():
+            told.append(warning)
+    assert len(told) == 1 and "pitched +" in told[0], told  # told once, then quiet
+    off = est.sequence.mount.offset_deg() if est.sequence.mount else None
+    assert off is not None and abs(off[0] - 8.0) < 1.0 and abs(off[1]) < 1.0
+    level = svc.PoseEstimator(CAM, g, svc.Settings(static_camera_pose=(0.0, 0.0, 0.0)))
+    for k, (_, v, _) in enumerate(_sway_walk(30.0, 0, 4.0, 0.05, 0.0)):
+        level.estimate(MarkerVertices(seq=k, stamp_ns=10**12 + k * 33_000_000, found=True,
+                                      vertices_px=tuple(map(tuple, v))))  # type: ignore[arg-type]
+        assert level.mount_warning() == ""

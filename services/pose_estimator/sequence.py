@@ -121,6 +121,57 @@ def heading_about(up: np.ndarray, Ra: np.ndarray, Rb: np.ndarray) -> float:
     return math.atan2(float(np.cross(a, b) @ up), float(a @ b))
 
 
+class MountCheck:
+    """Is the world's up where the deployment file's mount puts it? Over a sequence.
+
+    The humanoid stands upright, so the marker's normal, from the image alone (the IPPE
+    candidate, no prior), is level on average. With the real mount turned by a small
+    rotation ``d`` (camera frame) from the file's, each frame's ``n . up_file`` is about
+    ``d . (n x up_file)``: a linear least squares over the frames gives ``d``, reported as
+    the camera's pitch (about its x) and roll (about its z) off the file.
+    """
+
+    def __init__(self, up_cam: np.ndarray, min_frames: int = 60, alert_deg: float = 3.0,
+                 max_tilt_deg: float = 30.0) -> None:
+        self.up = np.asarray(up_cam, np.float64)
+        self.min_frames, self.alert_deg = min_frames, alert_deg
+        self.max_tilt = math.sin(math.radians(max_tilt_deg))
+        self.A = np.zeros((3, 3))
+        self.b = np.zeros(3)
+        self.frames = 0
+
+    def add(self, R_image: np.ndarray) -> None:
+        """One frame's marker rotation from the image alone."""
+        n = R_image[:, 2]
+        m = float(n @ self.up)
+        if abs(m) > self.max_tilt:  # not a standing humanoid's marker (or a bad frame)
+            return
+        a = np.cross(n, self.up)
+        self.A += np.outer(a, a)
+        self.b += a * m
+        self.frames += 1
+
+    def offset_deg(self) -> tuple[float, float] | None:
+        """(pitch, roll) of the real mount off the file's, deg (camera x and z), or None
+        before ``min_frames``."""
+        if self.frames < self.min_frames:
+            return None
+        # a ridge: a direction the views hardly see (the roll, from a marker always seen
+        # face-on) stays near zero instead of following the noise
+        A = self.A + (np.outer(self.up, self.up) + 0.02 * np.eye(3)) * self.frames
+        d = np.linalg.solve(A, self.b)
+        return math.degrees(float(d[0])), math.degrees(float(d[2]))
+
+    def message(self) -> str:
+        """A warning when the mount looks more than ``alert_deg`` off, else ""."""
+        off = self.offset_deg()
+        if off is None or math.hypot(*off) < self.alert_deg:
+            return ""
+        return (f"the marker leans {math.hypot(*off):.1f}° on average over {self.frames} "
+                f"frames: the camera mount looks pitched {off[0]:+.1f}° and rolled "
+                f"{off[1]:+.1f}° off the deployment file's (check camera_pitch_rad)")
+
+
 class MarkerSequence:
     """Feed it each frame's vertices in order; it returns the marker pose of the frame."""
 
@@ -132,6 +183,7 @@ class MarkerSequence:
         self.params = params or SequenceParams()
         self.branches = BranchTracker()
         self.previous: tuple[int, np.ndarray] | None = None  # (stamp_ns, R) of the last pose
+        self.mount = MountCheck(up_cam) if up_cam is not None else None
 
     def reset(self) -> None:
         self.branches.reset()
@@ -167,6 +219,9 @@ class MarkerSequence:
                 math.radians(10.0):
             mp = solve(follow, 3.0)  # the frame alone chose the other branch: follow the track
         T = mp.T_camera_marker.copy()
+        if self.mount is not None:
+            self.mount.add(min(mp.candidates, key=lambda c: rotation_angle(
+                c[:3, :3], T[:3, :3]))[:3, :3])
         cov = self._covariance(T, v, sigma_px, vertices_cov_px2)
         reason = ""
         pair = self._pair(T[:3, :3], mp.candidates)

@@ -83,6 +83,7 @@ class PoseEstimator:
         self.odom = OdometryBuffer(maxlen=64)
         self.odom_stalled = False  # the last wait for odometry ran out; none since
         self.steady = PoseFilter(config.filter)
+        self._mount_told: tuple[float, float] | None = None
         self.sequence = MarkerSequence(camera, self.points, self.up_cam, SequenceParams(
             continuity_window_s=config.continuity_window_s,
             vertex_sigma_px=config.vertex_sigma_px,
@@ -123,6 +124,19 @@ class PoseEstimator:
                             marker_in_camera=marker, reprojection_px=mp.reprojection_px,
                             covariance=cov_rows, area_ratio=msg.area_ratio,  # type: ignore[arg-type]
                             reason=note)
+
+    def mount_warning(self) -> str:
+        """A message the first time the frames say the camera mount is off the deployment
+        file's (and again whenever that estimate moves by more than 2°), else ""."""
+        mount = self.sequence.mount
+        off = mount.offset_deg() if mount is not None else None
+        if mount is None or off is None or not (message := mount.message()):
+            return ""
+        if self._mount_told is not None and math.hypot(
+                off[0] - self._mount_told[0], off[1] - self._mount_told[1]) <= 2.0:
+            return ""
+        self._mount_told = off
+        return message
 
     def filtered(self, pose: HumanoidPose) -> HumanoidPose | None:
         """The steady counterpart of a world pose (None while the world pose is unknown)."""
@@ -207,5 +221,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                 log.warning("no pose for frame %d: %s", msg.seq, err)
             continue
         bus.put(HUMANOID_POSE, pose)
+        if warning := est.mount_warning():
+            log.warning("%s", warning)
         if (steady := est.filtered(pose)) is not None:
             bus.put(HUMANOID_POSE_FILTERED, steady)

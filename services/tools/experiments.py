@@ -161,6 +161,7 @@ def control_run(seed: int = 1, max_s: float = 30.0, fps: float = 30.0,
         sim.step(dt)
         det = ex.extract(sim.render().image)
         pose = None
+        heading_sigma = None
         if det.found and det.vertices_px is not None:
             v = det.vertices_px
             msg = MarkerVertices(seq=k, stamp_ns=int(t * 1e9), found=True, vertices_px=(
@@ -168,6 +169,8 @@ def control_run(seed: int = 1, max_s: float = 30.0, fps: float = 30.0,
             p = est.estimate(msg)
             assert p.x is not None and p.y is not None and p.yaw is not None
             pose = (p.x, p.y, p.yaw)
+            if p.covariance is not None:
+                heading_sigma = math.sqrt(max(p.covariance[2][2], 0.0))
             f, _ = steady.update(msg.stamp_ns, pose, None if p.covariance is None
                                  else np.array(p.covariance))
             estimates.append((t, p.x, p.y))
@@ -176,7 +179,7 @@ def control_run(seed: int = 1, max_s: float = 30.0, fps: float = 30.0,
                 pose = (float(f[0]), float(f[1]), float(f[2]))
         truth.append((t, sim.humanoid.x, sim.humanoid.y))
         if k % 3 == 0:  # 10 Hz control
-            d = ctrl.decide(pose, 0.0, False, now_s=t)
+            d = ctrl.decide(pose, 0.0, False, now_s=t, heading_sigma_rad=heading_sigma)
             reason = d.reason
             if d.command is not last:
                 sim.command(d.command)
