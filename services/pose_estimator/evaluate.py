@@ -106,6 +106,56 @@ def ours_solver(camera: CameraModel, refine: bool = True, sigma_px: float | None
 
 
 
+def unrelated_views(n: int, seed: int = 0, *, lean_deg: float = 3.0, roll_deg: float = 0.0,
+                    mount_off_deg: float = 0.0, noise_px: float = 0.3,
+                    camera: CameraModel | None = None) -> list[PoseCase]:
+    """Unrelated views of the humanoid in front of a camera at the marker's height (the
+    deployment's geometry): 15-80 cm, bearing within ±17°, heading within ±40° of the line
+    of sight; the marker leaning forward or back up to ``lean_deg`` and sideways up to
+    ``roll_deg``; the real mount pitched ±``mount_off_deg`` from the file's, whose up
+    vector the estimator is given; ``noise_px`` on every vertex coordinate."""
+    camera = camera or CameraModel.paper()
+    g = Geometry()
+    pts = g.marker_points()
+    T_file = g.T_base_camera()
+    rng = np.random.default_rng(seed)
+    out: list[PoseCase] = []
+    while len(out) < n:
+        dist, bearing = rng.uniform(0.15, 0.8), rng.uniform(-0.3, 0.3)
+        yaw = bearing + math.radians(rng.uniform(-40, 40))
+        tilt = make_T(rot_y(math.radians(rng.uniform(-lean_deg, lean_deg))) @ rot_x(
+            math.radians(rng.uniform(-roll_deg, roll_deg))), (0, 0, 0))
+        T_real = T_file if mount_off_deg == 0 else T_base_camera(
+            g.camera_forward_m, g.camera_height_m,
+            g.camera_pitch_rad + math.radians(mount_off_deg * rng.choice([-1, 1])))
+        T = inv_T(T_real) @ T_floor(dist * math.cos(bearing) + g.marker_back_offset_m *
+                                    math.cos(yaw), dist * math.sin(bearing) +
+                                    g.marker_back_offset_m * math.sin(yaw), yaw) @ tilt @ \
+            g.T_humanoid_marker()
+        v = camera.project(pts @ T[:3, :3].T + T[:3, 3])
+        if T[2, 3] > 0.1 and np.all(v > 5) and np.all(v < [camera.width - 6,
+                                                          camera.height - 6]):
+            out.append(PoseCase(T, v + rng.normal(0, noise_px, v.shape), up_in_camera(T_file),
+                                noise_px))
+    return out
+
+
+def against_ippe(cases: list[PoseCase], camera: CameraModel | None = None,
+                 **estimator: float) -> tuple[float, float]:
+    """Position error of our estimator (the service's vertex sigma, the views' up vector,
+    ``estimator`` keyword arguments) over OpenCV's IPPE on the same vertices: (median
+    ratio, p90 ratio)."""
+    camera = camera or CameraModel.paper()
+    pts = Geometry().marker_points()
+    cv = opencv_solver(cv2.SOLVEPNP_IPPE, camera)
+    ours = np.array([_errors(estimate_marker_pose(
+        camera, c.vertices_px, pts, up_cam=c.up_cam, sigma_px=VERTEX_SIGMA_PX,
+        **estimator).T_camera_marker, c.T_camera_marker)[0] for c in cases])  # type: ignore[arg-type]
+    ref = np.array([_errors(cv(c), c.T_camera_marker)[0] for c in cases])
+    return (float(np.median(ours) / np.median(ref)),
+            float(np.percentile(ours, 90) / np.percentile(ref, 90)))
+
+
 def compare(cases: list[PoseCase], camera: CameraModel | None = None
             ) -> dict[str, tuple[np.ndarray, np.ndarray]]:
     """Per method: arrays of position errors (m) and rotation errors (rad)."""
