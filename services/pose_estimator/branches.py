@@ -8,7 +8,8 @@ given to the track whose last rotation is nearer, and adds its cost to it, the r
 error in units of the vertex noise plus the upright prior, with a forgetting factor. The
 estimator follows the cheaper track; while the two differ by less than ``decide_cost`` it says
 so (``ambiguous``). A candidate far from both tracks (the marker lost and found elsewhere)
-starts afresh, so unrelated frames pay nothing for the tracking.
+starts afresh, so unrelated frames pay nothing for the tracking. Where the two branches meet
+(``crossed``), the past evidence counts for neither: the caller (``sequence``) says when.
 """
 
 from __future__ import annotations

@@ -10,14 +10,21 @@ this module adds what the frames before it know:
   follows the cheaper track, and re-solves on it when the frame alone chose the other.
 - **the crossing**: seen face-on from the marker's height the two candidates are yaw mirrors
   about the line of sight, and they meet when the heading crosses it. When they are within
-  the noise of each other (``merge_sigmas`` heading sigmas) the frame's pose is their midpoint:
-  no branch to swap. When the tracks are still undecided, ``reason`` says "ambiguous" and the
-  heading variance is widened to cover the other candidate.
-- **covariance**: the frame's covariance is the Laplace approximation of the posterior: the
-  image information (per-vertex noise from the extractor when it sends it, else
-  ``vertex_sigma_px``) plus the upright prior's, plus the body's rock about its feet (the marker
-  rolls about its normal with the gait, ``rock_sigma_rad``), which moves the floor position
-  the marker implies.
+  the noise of each other (``merge_sigmas`` heading sigmas) the frame's pose is their midpoint
+  (no branch to swap), its heading variance grows by the half gap squared, and the tracks
+  lose their identities: which continues which branch after a meeting is unknown, so the
+  evidence gathered before counts for neither. Where a frame cannot decide (the tracks still
+  undecided, or crossing so that their candidates cannot be paired, or the followed branch
+  being no minimum of its own) ``reason`` says "ambiguous" and the heading variance covers
+  the other candidate: never a confident wrong branch.
+- **covariance**: the sandwich covariance of the estimate under a vertex noise model (the
+  extractor's per-vertex covariances when it sends them, else ``noise_sigma_px`` per
+  coordinate plus a common scale error ``scale_sigma_px``), with the upright prior's
+  information, plus the body's rock about its feet (the marker rolls about its normal with
+  the gait, ``rock_sigma_rad``), which moves the floor position the marker implies. Over the
+  webcam sequences its normalised estimation error squared of (x, y, yaw) averages 2.4.
+- **the mount**: ``MountCheck`` estimates from the marker's mean lean how far the real
+  camera mount is off the deployment file's.
 """
 
 from __future__ import annotations
@@ -95,13 +102,6 @@ def vertex_sigma(vertices_cov_px2: object | None, fallback_px: float) -> float:
         return fallback_px
     var = float(np.mean(np.trace(C, axis1=1, axis2=2))) / 2.0
     return math.sqrt(var) if var > 1e-6 else fallback_px
-
-
-def _log_so3(R: np.ndarray) -> np.ndarray:
-    angle = rotation_angle(np.eye(3), R)
-    w = np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
-    s = math.sin(angle)
-    return 0.5 * w if s < 1e-9 else angle / (2.0 * s) * w
 
 
 def _exp_so3(w: np.ndarray) -> np.ndarray:
