@@ -198,7 +198,10 @@ class MarkerSequence:
         if not recent:
             self.branches.reset()
         v = np.asarray(vertices_px, dtype=np.float64)
-        sigma_px = vertex_sigma(vertices_cov_px2, p.vertex_sigma_px)
+        # the vertices' weight: the extractor's noise when larger than the setting, never
+        # smaller (its covariance leaves out errors common to the vertices, such as the
+        # scale, and a smaller weight would weaken the priors against them)
+        sigma_px = max(vertex_sigma(vertices_cov_px2, p.vertex_sigma_px), p.vertex_sigma_px)
 
         def solve(previous_R: np.ndarray | None, sigma_deg: float = 10.0) -> MarkerPose:
             return estimate_marker_pose(
