@@ -396,7 +396,7 @@ def run(out: Path, quick: bool = False) -> int:
               "|---|---|---|---|---|---|---|---|---|", *seq_rows, "",
               f"Mean NEES over all sequences: **{nees:.2f}** (an honest covariance: 3, a "
               "chi-squared with 3 degrees of freedom). 'Not covered': more than 5° off and "
-              "not marked ambiguous with 3 sigma covering the error. Goal: walking away "
+              "not marked ambiguous with its heading sigma covering the error. Goal: walking away "
               "heading median <= 0.5°, p95 <= 2°, position p95 <= 6 mm; none not covered; "
               "NEES 2-4.5.", ""]
 
