@@ -43,7 +43,7 @@ from services.pose_estimator.estimate import (
     MarkerPose,
     estimate_marker_pose,
 )
-from services.pose_estimator.p4p import huber_weight, residuals_and_jacobian
+from services.pose_estimator.p4p import PoseError, huber_weight, residuals_and_jacobian
 
 #: the marker's roll about its normal with the gait (1-sigma, deg): the simulator's 0.02 rad
 #: rock, sine-shaped, has an RMS of 0.8 deg
@@ -266,7 +266,12 @@ class MarkerSequence:
         f = 0.5 * (self.camera.K[0, 0] + self.camera.K[1, 1])
         q = undistort_px(self.camera, v)
         R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
-        _, J = residuals_and_jacobian(R, t, np.ascontiguousarray(self.points, np.float64), q)
+        try:
+            _, J = residuals_and_jacobian(R, t, np.ascontiguousarray(self.points, np.float64),
+                                          q)
+        except ZeroDivisionError:
+            raise PoseError("numerically degenerate view (a vertex at the camera's depth "
+                            "0)") from None
         J = J * f  # px per unit of (w, t)
         C = np.asarray(vertices_cov_px2, np.float64) if vertices_cov_px2 is not None else None
         if C is None or C.shape != (4, 2, 2) or not np.isfinite(C).all():
