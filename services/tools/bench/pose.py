@@ -71,7 +71,7 @@ def run(quick: bool) -> None:
     section(f"Pose: position error / cv2 IPPE, {m} unrelated views at the marker's height, "
             "0.3 px", ("markers", "heavy-tailed prior: median", "p90", "Gaussian prior: median",
                        "p90"), rows,
-            "The upright prior (2°) is Gaussian to 2 sigma and heavy-tailed beyond "
+            "The upright prior (2°) is Gaussian to 1.75 sigma and heavy-tailed beyond "
             "(estimate.TILT_HUBER_SIGMAS). Goal: upright median <= 0.95x, p90 <= 1.0x; pitched "
             "or a mount off: median <= 1.05x, p90 <= 1.0x.")
     progress("pose: IPPE branches")
