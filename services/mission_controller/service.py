@@ -7,6 +7,7 @@ decides a command and publishes it on ``ir/command`` when it changes (and every
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Literal
 
@@ -50,6 +51,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
     last_cmd: Command | None = None
     last_sent = 0.0
     pose: tuple[float, float, float] | None = None
+    heading_sigma: float | None = None
     hold = False
     origin: tuple[float, float] | None = None  # where the current leg started (loop)
     ticker = Ticker(1.0 / config.rate_hz)
@@ -73,6 +75,8 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
             if (p := poses.get_nowait()) is not None and p.x is not None and p.y is not None \
                     and p.yaw is not None:
                 pose = (p.x, p.y, p.yaw)
+                heading_sigma = math.sqrt(max(p.covariance[2][2], 0.0)) \
+                    if p.covariance is not None else None
                 if origin is None:
                     origin = (p.x, p.y)
             if (h := holds.get_nowait()) is not None:
@@ -81,7 +85,8 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                 hold = False
             was_done = ctrl.phase is Phase.DONE
             try:
-                d = ctrl.decide(pose, age_s(poses.last_received_ns), hold, time.monotonic())
+                d = ctrl.decide(pose, age_s(poses.last_received_ns), hold, time.monotonic(),
+                                heading_sigma)
             except Exception:
                 log.exception("control step failed; stopping the humanoid")
                 send(Command.STOP)

@@ -38,6 +38,7 @@ from services.sim.render import RenderStyle, render_view
 from services.sim.scenes import marker_pose
 from services.sim.state import SimWorld
 from services.sim.webcam import WebcamParams
+from services.tools import pose_sequences
 from services.vertex_extractor.extractor import RhombusExtractor
 
 PAPER_TABLE3_SPREAD = {"x": 0.265, "y": 0.580, "z": 1.419, "roll": 2.643, "pitch": 6.855,
@@ -160,6 +161,7 @@ def control_run(seed: int = 1, max_s: float = 30.0, fps: float = 30.0,
         sim.step(dt)
         det = ex.extract(sim.render().image)
         pose = None
+        heading_sigma = None
         if det.found and det.vertices_px is not None:
             v = det.vertices_px
             msg = MarkerVertices(seq=k, stamp_ns=int(t * 1e9), found=True, vertices_px=(
@@ -167,6 +169,8 @@ def control_run(seed: int = 1, max_s: float = 30.0, fps: float = 30.0,
             p = est.estimate(msg)
             assert p.x is not None and p.y is not None and p.yaw is not None
             pose = (p.x, p.y, p.yaw)
+            if p.covariance is not None:
+                heading_sigma = math.sqrt(max(p.covariance[2][2], 0.0))
             f, _ = steady.update(msg.stamp_ns, pose, None if p.covariance is None
                                  else np.array(p.covariance))
             estimates.append((t, p.x, p.y))
@@ -175,7 +179,7 @@ def control_run(seed: int = 1, max_s: float = 30.0, fps: float = 30.0,
                 pose = (float(f[0]), float(f[1]), float(f[2]))
         truth.append((t, sim.humanoid.x, sim.humanoid.y))
         if k % 3 == 0:  # 10 Hz control
-            d = ctrl.decide(pose, 0.0, False, now_s=t)
+            d = ctrl.decide(pose, 0.0, False, now_s=t, heading_sigma_rad=heading_sigma)
             reason = d.reason
             if d.command is not last:
                 sim.command(d.command)
@@ -369,6 +373,35 @@ def run(out: Path, quick: bool = False) -> int:
               "| frames | poses | position median | p95 | heading median | p95 |",
               "|---|---|---|---|---|---|", *tracking, "",
               "Goal (webcam): heading median <= 0.5°, p95 <= 2°; position median <= 3 mm.", ""]
+
+    _progress("heading over sequences at the marker's height")
+    seq_rows, walk, nees, mount = pose_sequences.experiment(calibrated, quick)
+    if walk is not None:
+        cv2.imwrite(str(out / "heading_walk_away.png"), line_plot(
+            [("true heading (°)", walk.t_s, walk.truth_yaw_deg),
+             ("estimated heading (°)", walk.t_s, walk.truth_yaw_deg + walk.heading_err_deg),
+             ("published 1-sigma (°)", walk.t_s, walk.heading_sigma_deg)],
+            title="Heading while walking straight away (camera at the marker's height)",
+            xlabel="time (s)", ylabel="degrees",
+            residual=("estimate - truth (°)", walk.t_s, walk.heading_err_deg)))
+    parts += ["## Heading over sequences at the marker's height", "",
+              "![](heading_walk_away.png)", "",
+              "The static camera at the marker's height (where the two IPPE poses are yaw "
+              "mirrors that cross whenever the heading crosses the line of sight); frames "
+              "through the simulated webcam in the photographed room, the extractor and the "
+              "pose estimator on our calibration. Walking away: the heading sways with the "
+              "steps, the marker rolls ±1.1° with them.", "",
+              "| sequence | poses | heading median | p95 | max | ambiguous | > 5° off, "
+              "not covered | position p95 | NEES (x, y, yaw) |",
+              "|---|---|---|---|---|---|---|---|---|", *seq_rows, "",
+              f"Mean NEES over all sequences: **{nees:.2f}** (an honest covariance: 3, a "
+              "chi-squared with 3 degrees of freedom). 'Not covered': more than 5° off and "
+              "not marked ambiguous with its heading sigma covering the error. Goal: walking away "
+              "heading median <= 0.5°, p95 <= 2°, position p95 <= 6 mm; none not covered; "
+              "NEES 2-4.5.", "",
+              "The last row: the camera's real mount pitched 8° down while the deployment "
+              "file says level (the upright prior is then 8° wrong on every frame; its "
+              f"heavy tails keep the cost small). The mount check said: _{mount}_.", ""]
 
     _progress("Fig. 10: spread against area ratio")
     rs, ds, stds = std_vs_distance(trials)
