@@ -1,6 +1,7 @@
 # One-command dev loop. `make run` installs and runs the simulated mission; `make test`
 # installs the dev tools (and the Debian packages some tests use, when run as root) and runs
-# lint (ruff, mypy) and the whole suite; `make test-fast` leaves out the slow tests. All use a
+# lint (ruff, mypy) and the whole suite (the manual's strict build and checks included);
+# `make test-fast` leaves out the slow tests; `make docs` serves the manual. All use a
 # virtual environment in .venv.
 PYTHON ?= python3
 VENV ?= .venv
@@ -13,7 +14,7 @@ $(BIN)/shepherd: pyproject.toml
 	$(BIN)/shepherd compile
 	touch $@
 
-.PHONY: install run test test-fast lint bench clean
+.PHONY: install run test test-fast lint bench docs clean
 install: $(BIN)/shepherd
 
 run: install
@@ -37,6 +38,10 @@ test-fast: install
 
 bench: install
 	$(BIN)/shepherd bench
+
+# the manual (MkDocs + Material) at http://127.0.0.1:8000, rebuilt as pages change
+docs: install
+	$(BIN)/mkdocs serve
 
 clean:
 	rm -rf $(VENV) build *.egg-info runs

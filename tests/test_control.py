@@ -351,3 +351,25 @@ def test_serial_backend_counts_codes_the_firmware_did_not_acknowledge(tmp_path: 
     finally:
         backend.close()
         acked.unplug()
+
+
+def test_no_turn_is_decided_on_a_heading_whose_sigma_exceeds_k():
+    import math
+
+    from schemas import Command
+    from services.mission_controller.controller import ControlParams, HeuristicController
+    ctrl = HeuristicController(ControlParams())
+    ctrl.set_waypoints([(0.3, 0.3)])
+    pose = (0.0, 0.0, 0.0)  # the goal 45° to the left, well beyond k = 15°
+    unsure = math.radians(20.0)
+    d = ctrl.decide(pose, 0.0, False, now_s=0.0, heading_sigma_rad=unsure)
+    assert d.command is Command.STOP and "uncertain" in d.reason
+    d = ctrl.decide(pose, 0.0, False, now_s=0.2, heading_sigma_rad=unsure)
+    assert d.command is Command.STOP  # still waiting for a surer heading
+    d = ctrl.decide(pose, 0.0, False, now_s=0.3, heading_sigma_rad=math.radians(2.0))
+    assert d.command is Command.TURN_LEFT  # a sure heading: turn at once
+    other = HeuristicController(ControlParams())
+    other.set_waypoints([(0.3, 0.3)])
+    other.decide(pose, 0.0, False, now_s=0.0, heading_sigma_rad=unsure)
+    d = other.decide(pose, 0.0, False, now_s=0.6, heading_sigma_rad=unsure)
+    assert d.command is Command.TURN_LEFT  # waited long enough: decide anyway

@@ -7,14 +7,24 @@ import asyncio
 import math
 import struct
 import time
+from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
-from schemas import CameraGoal, CameraPose, HumanoidPose, MarkerInCamera, MissionGoal
-from schemas.keys import CAMERA_GOAL, HUMANOID_POSE, MISSION_GOAL, ODOM
+from schemas import (
+    CameraGoal,
+    CameraPose,
+    HumanoidPose,
+    MarkerInCamera,
+    MissionGoal,
+    ServiceStats,
+)
+from schemas.keys import CAMERA_GOAL, HUMANOID_POSE, MISSION_GOAL, ODOM, STATS
 from services.ros2_bridge import convert, rmw
+from services.ros2_bridge.frames import FrameNames, Tree, UnknownFrameError
 from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
 from tests.conftest import wait_alive_async
@@ -76,6 +86,58 @@ def test_the_attachment_is_rmw_zenohs_33_bytes():
         rmw.pack_attachment(1, 1, b"short")
 
 
+def test_the_publisher_gid_is_rmw_zenohs_hash_of_the_token():
+    # the vector from rmw_zenoh_cpp's own simplified_xxhash3.cpp (compiled, fed this token,
+    # low64 then high64 little-endian as liveliness::Entity copies them)
+    token = rmw.entity_token(0, "8b20917502ee955ac4476e0266340d5c", 0, 10, "MP", "talker",
+                             "/chatter", "std_msgs/msg/String", rmw.Qos(depth=7))
+    assert rmw.entity_gid(token).hex() == "eb85fa883b7846dc448a4501890ad062"
+    assert rmw.entity_gid("abc").hex() == "50392f89945faf7885613a73b65ab006"
+
+
+def test_the_static_tree_places_the_camera_as_the_geometry_does():
+    from services.core.mounts import Geometry
+    g = Geometry(camera_height_m=0.31, camera_forward_m=0.07, camera_pitch_rad=0.2)
+    tree = Tree(FrameNames(), (1.0, 2.0, math.pi / 2), g)
+    (w, o, T_map_odom), (b, c, T_base_link_camera), (c2, opt, T_camera_optical) = (
+        tree.static_transforms())
+    assert (w, o, b, c, c2, opt) == ("map", "odom", "base_link", "camera_link", "camera_link",
+                                     "camera_optical_frame")
+    assert np.allclose(T_base_link_camera @ T_camera_optical, g.T_base_camera())
+    assert np.allclose(T_map_odom[:3, 3], (1.0, 2.0, 0.0))
+    # through the wire and back: the quaternion of each transform is the rotation's
+    for parent, child, T in tree.static_transforms():
+        msg = rmw.deserialize(rmw.serialize(convert.tf_message([convert.transform_T(
+            5, parent, child, T)]), convert.TF), convert.TF).transforms[0]
+        q = msg.transform.rotation
+        assert np.allclose(Rotation.from_quat([q.x, q.y, q.z, q.w]).as_matrix(), T[:3, :3])
+        assert (msg.header.frame_id, msg.child_frame_id) == (parent, child)
+
+
+def test_floor_poses_move_between_map_and_odom_and_nowhere_else():
+    from services.core.mounts import Geometry
+    tree = Tree(FrameNames(), (1.0, 2.0, math.pi / 2), Geometry())
+    assert tree.to_world("odom", (0.5, 0.0, 0.3)) == pytest.approx((1.0, 2.5, 0.3 + math.pi / 2))
+    assert tree.to_world("map", (0.5, 0.0, 0.3)) == pytest.approx((0.5, 0.0, 0.3))
+    assert tree.from_world("odom", tree.to_world("odom", (0.2, -0.4, 1.0))) == pytest.approx(
+        (0.2, -0.4, 1.0))
+    with pytest.raises(UnknownFrameError, match="frame 'base_link' is not one the bridge"):
+        tree.to_world("base_link", (0.0, 0.0, 0.0))
+    with pytest.raises(UnknownFrameError, match="no frame_id"):
+        tree.from_world("", (0.0, 0.0, 0.0))
+
+
+def test_settings_keep_one_tree():
+    from pydantic import ValidationError
+
+    from services.ros2_bridge.service import Settings
+    with pytest.raises(ValidationError, match="each frame needs its own name"):
+        Settings(base_frame="odom")
+    with pytest.raises(ValidationError, match="goal_frame 'base_link' must be"):
+        Settings(goal_frame="base_link")
+    assert Settings(goal_frame="odom").frame_names().world == "map"
+
+
 def _pose(x: float, y: float, yaw: float, stamp: int) -> HumanoidPose:
     cov = ((1e-4, 2e-5, 3e-6), (2e-5, 4e-4, 5e-6), (3e-6, 5e-6, 6e-3))
     return HumanoidPose(seq=3, stamp_ns=stamp, x=x, y=y, yaw=yaw, covariance=cov,
@@ -135,7 +197,7 @@ def test_what_the_bridge_publishes_decodes_in_rosbags_to_the_same_values(router,
 
     (payload, attachment), second = by_topic["0/shepherd/humanoid/pose"][:2]
     pose = rmw.deserialize(payload, convert.POSE_COV)
-    assert pose.header.frame_id == "world" and convert.stamp_ns(pose.header.stamp) == stamp
+    assert pose.header.frame_id == "map" and convert.stamp_ns(pose.header.stamp) == stamp
     p, q = pose.pose.pose.position, pose.pose.pose.orientation
     assert (p.x, p.y, p.z) == pytest.approx((0.6, -0.2, 0.0))
     assert convert.quaternion_yaw(q) == pytest.approx(0.5)
@@ -143,7 +205,9 @@ def test_what_the_bridge_publishes_decodes_in_rosbags_to_the_same_values(router,
     assert cov[0, 0] == 1e-4 and cov[0, 1] == 2e-5 and cov[0, 5] == 3e-6
     assert cov[1, 1] == 4e-4 and cov[5, 1] == 5e-6 and cov[5, 5] == 6e-3
     seq, source_ns, gid = rmw.unpack_attachment(attachment)
-    assert rmw.unpack_attachment(second[1])[0] == seq + 1 and len(gid) == 16
+    assert rmw.unpack_attachment(second[1])[0] == seq + 1
+    pose_token = next(t for t in tokens if "/MP/" in t and "%humanoid%pose/" in t)
+    assert gid == rmw.entity_gid(pose_token)
     assert abs(source_ns - time.time_ns()) < 60e9
 
     goal = rmw.deserialize(by_topic["0/goal_pose"][0][0], convert.POSE)
@@ -154,10 +218,9 @@ def test_what_the_bridge_publishes_decodes_in_rosbags_to_the_same_values(router,
     for payload, _ in by_topic["0/tf"]:
         for t in rmw.deserialize(payload, convert.TF).transforms:
             frames[(t.header.frame_id, t.child_frame_id)] = t
-    humanoid, camera = frames[("world", "humanoid")], frames[("world", "camera_base")]
-    assert humanoid.transform.translation.x == pytest.approx(0.61)  # the latest
-    assert camera.transform.translation.x == pytest.approx(0.05)
-    assert convert.quaternion_yaw(camera.transform.rotation) == pytest.approx(0.25)
+    assert frames[("map", "humanoid")].transform.translation.x == pytest.approx(0.61)  # latest
+    # the camera robot's odometry is the robot's to publish (odom -> base_link), not ours
+    assert set(frames) == {("map", "humanoid")}
 
 
 def test_ros_odometry_and_goals_become_shepherd_messages(router, make_bus, sessions):
@@ -179,11 +242,15 @@ def test_ros_odometry_and_goals_become_shepherd_messages(router, make_bus, sessi
             twist=T["geometry_msgs/msg/Twist"](linear=T["geometry_msgs/msg/Vector3"](
                 x=0.0, y=0.0, z=0.0), angular=T["geometry_msgs/msg/Vector3"](
                 x=0.0, y=0.0, z=0.0)), covariance=np.zeros(36)))
-    goal = T[convert.POSE](header=convert.header(5, "world"), pose=T["geometry_msgs/msg/Pose"](
-        position=T["geometry_msgs/msg/Point"](x=0.9, y=-0.1, z=0.0),
-        orientation=convert.yaw_quaternion(0.0)))
+    def goal(frame: str) -> bytes:
+        return rmw.serialize(T[convert.POSE](
+            header=convert.header(5, frame), pose=T["geometry_msgs/msg/Pose"](
+                position=T["geometry_msgs/msg/Point"](x=0.9, y=-0.1, z=0.0),
+                orientation=convert.yaw_quaternion(0.0))), convert.POSE)
 
-    async def go() -> tuple[CameraPose, MissionGoal]:
+    goal_key = rmw.data_key(0, "/shepherd/mission/goal", convert.POSE)
+
+    async def go() -> tuple[CameraPose, MissionGoal, MissionGoal, ServiceStats]:
         odoms = bus.subscribe(ODOM, CameraPose, latest=False, queue=4)
         missions = bus.subscribe(MISSION_GOAL, MissionGoal, latest=False, queue=4)
         task = asyncio.create_task(run_deployment(dep, duration=15))
@@ -192,18 +259,29 @@ def test_ros_odometry_and_goals_become_shepherd_messages(router, make_bus, sessi
         gid = bytes(16)
         ros.put(rmw.data_key(0, "/odom", convert.ODOMETRY), rmw.serialize(odom, convert.ODOMETRY),
                 attachment=rmw.pack_attachment(1, time.time_ns(), gid))
-        ros.put(rmw.data_key(0, "/shepherd/mission/goal", convert.POSE),
-                rmw.serialize(goal, convert.POSE),
-                attachment=rmw.pack_attachment(1, time.time_ns(), gid))
-        got = await odoms.recv(timeout=5), await missions.recv(timeout=5)
+        for n, frame in enumerate(("map", "odom", "base_footprint")):
+            ros.put(goal_key, goal(frame), attachment=rmw.pack_attachment(n + 1, time.time_ns(),
+                                                                          gid))
+        camera, in_map, in_odom = (await odoms.recv(timeout=5), await missions.recv(timeout=5),
+                                   await missions.recv(timeout=5))
+        for _ in range(50):  # the third goal, refused, shows in the bridge's stats
+            stats = await bus.get(f"{STATS}/ros2_bridge", ServiceStats)
+            if stats and stats[0].rejected:
+                break
+            await asyncio.sleep(0.1)
+        assert missions.get_nowait() is None  # the refused goal went nowhere
         task.cancel()
-        return got
-    camera, mission = asyncio.run(go())
+        return camera, in_map, in_odom, stats[0]
+    camera, mission, mission_odom, stats = asyncio.run(go())
     # the odometry frame sits at (1, 2) turned 90°: (0.5, 0) in it is (1, 2.5) in the world
     assert (camera.x, camera.y) == pytest.approx((1.0, 2.5))
     assert camera.yaw == pytest.approx(0.3 + math.pi / 2)
     assert camera.stamp_ns == 1_700_000_000_000_000_042
-    assert mission.waypoints == [(0.9, -0.1)]
+    assert mission.waypoints == [(0.9, -0.1)]  # in map: the world as it stands
+    (x, y), = mission_odom.waypoints  # in odom: (0.9, -0.1) turned 90° and moved to (1, 2)
+    assert (x, y) == pytest.approx((1.1, 2.9))
+    reasons = stats.rejected[goal_key]
+    assert len(reasons) == 1 and "frame 'base_footprint'" in next(iter(reasons))
 
 
 @pytest.mark.slow
@@ -220,12 +298,13 @@ def test_the_camera_image_and_its_info_reach_ros_rate_limited(router, make_bus, 
         "image" if "CompressedImage" in str(s.key_expr) else "info"].append(
         s.payload.to_bytes()))
     image = np.full((480, 640, 3), (255, 0, 255), np.uint8)
+    # the intrinsics were put before the bridge started: only the queryable has them now
+    bus.declare_queryable("camera/intrinsics", CameraModel.paper().to_message)
 
     async def go() -> None:
         task = asyncio.create_task(run_deployment(dep, duration=15))
         await wait_alive_async(bus.session, "ros2_bridge")
         await wait_matched(bus, "camera/frame")
-        bus.put("camera/intrinsics", CameraModel.paper().to_message())
         t0 = time.monotonic()
         seq = 0
         while time.monotonic() - t0 < 1.0:  # 30 fps for a second
@@ -238,8 +317,102 @@ def test_the_camera_image_and_its_info_reach_ros_rate_limited(router, make_bus, 
     sub.undeclare()
     assert 2 <= len(got["image"]) <= 6  # about 4 a second, not 30
     img = rmw.deserialize(got["image"][0], convert.IMAGE)
-    assert img.format == "jpeg" and img.header.frame_id == "camera"
+    assert img.format == "jpeg" and img.header.frame_id == "camera_optical_frame"
     decoded = cv2.imdecode(np.asarray(img.data), cv2.IMREAD_COLOR)
     assert decoded.shape == (480, 640, 3)
     info = rmw.deserialize(got["info"][-1], convert.CAMERA_INFO)
     assert (info.width, info.height) == (640, 480) and info.k[0] == pytest.approx(757.25)
+
+
+def test_the_rviz2_view_shows_what_the_robot_deployment_publishes():
+    import yaml
+
+    from services.ros2_bridge.service import Settings
+    from services.runtime.config import load_deployment
+    root = Path(__file__).resolve().parent.parent
+    view = yaml.safe_load((root / "deploy" / "ros2" / "shepherd.rviz").read_text())
+    dep = load_deployment(root / "deploy" / "robot-ros2.toml")
+    config = dep.settings_for("ros2_bridge")
+    assert isinstance(config, Settings)
+    ns = dep.namespace
+    manager = view["Visualization Manager"]
+    assert manager["Global Options"]["Fixed Frame"] == config.world_frame
+    topics = {d["Class"].rsplit("/", 1)[1]: d["Topic"]["Value"] for d in manager["Displays"]
+              if "Topic" in d}
+    assert topics == {
+        "PoseWithCovariance": config.pose_topic or f"/{ns}/humanoid/pose",
+        "Pose": config.goal_topic, "Image": f"/{ns}/camera/image/compressed"}
+    assert config.image
+    tool, = (t for t in manager["Tools"] if t["Class"].endswith("SetGoal"))
+    assert tool["Topic"]["Value"] == config.mission_goal_topic
+
+
+def test_with_odom_tf_the_simulated_robot_joins_the_tree(router, make_bus, sessions):
+    # the simulator's camera/odom is Shepherd's own: published as odom -> base_link, and no
+    # odometry taken from ROS (nothing to re-publish)
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"ros2_bridge": {"odom_tf": True,
+                                                         "T_world_odom": [1.0, 2.0, 0.5]}}})
+    bus = make_bus("sim")
+    ros = sessions()
+    samples: list[bytes] = []
+    sub = ros.declare_subscriber(rmw.data_key(0, "/tf", convert.TF),
+                                 lambda s: samples.append(s.payload.to_bytes()))
+
+    async def go() -> list[str]:
+        task = asyncio.create_task(run_deployment(dep, duration=15))
+        await wait_alive_async(bus.session, "ros2_bridge")
+        await asyncio.sleep(0.3)
+        bus.put(ODOM, CameraPose(stamp_ns=7, x=1.5, y=2.0, yaw=0.25))
+        for _ in range(100):
+            if samples:
+                break
+            await asyncio.sleep(0.05)
+        tokens = [str(r.ok.key_expr) for r in await asyncio.to_thread(
+            lambda: list(ros.liveliness().get("@ros2_lv/0/**", timeout=1.0))) if r.ok]
+        task.cancel()
+        return tokens
+    tokens = asyncio.run(go())
+    sub.undeclare()
+    t, = rmw.deserialize(samples[0], convert.TF).transforms
+    assert (t.header.frame_id, t.child_frame_id) == ("odom", "base_link")
+    # (1.5, 2) in the world: 0.5 m along the world's x from odom's origin, seen from odom
+    # (turned 0.5 rad); heading 0.25 - 0.5
+    assert t.transform.translation.x == pytest.approx(0.5 * math.cos(0.5))
+    assert t.transform.translation.y == pytest.approx(-0.5 * math.sin(0.5))
+    assert convert.quaternion_yaw(t.transform.rotation) == pytest.approx(-0.25)
+    assert not any("/MS/" in k and "/%odom/" in k for k in tokens)
+
+
+def test_a_late_rmw_zenoh_subscriber_gets_tf_static_from_the_cache(router, make_bus, sessions):
+    # as rmw_zenoh subscribes to a transient-local topic: a zenoh-ext advanced subscriber that
+    # detects late publishers, queries their history and follows their heartbeat
+    import zenoh.ext
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"ros2_bridge": {}}})
+    bus = make_bus("shepherd")
+    ros = sessions()
+    got: list[bytes] = []
+
+    async def go() -> None:
+        task = asyncio.create_task(run_deployment(dep, duration=15))
+        await wait_alive_async(bus.session, "ros2_bridge")
+        await asyncio.sleep(0.3)  # well after the bridge sent /tf_static
+        sub = zenoh.ext.declare_advanced_subscriber(
+            ros, rmw.data_key(0, "/tf_static", convert.TF),
+            lambda s: got.append(s.payload.to_bytes()),
+            history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
+            recovery=zenoh.ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
+            subscriber_detection=True)
+        for _ in range(100):
+            if got:
+                break
+            await asyncio.sleep(0.05)
+        sub.undeclare()
+        task.cancel()
+    asyncio.run(go())
+    assert len(got) == 1
+    edges = [(t.header.frame_id, t.child_frame_id)
+             for t in rmw.deserialize(got[0], convert.TF).transforms]
+    assert edges == [("map", "odom"), ("base_link", "camera_link"),
+                     ("camera_link", "camera_optical_frame")]

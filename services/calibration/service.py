@@ -14,7 +14,7 @@ from services.runtime.context import ServiceContext
 
 class Settings(ServiceSettings):
     intrinsics: RelPath = Field(description="TOML written by shepherd calibrate intrinsics")
-    republish_s: float = Field(default=5.0, gt=0.0)
+    republish_s: float = Field(default=5.0, gt=0.0, description="put it again this often")
 
 
 async def main(ctx: ServiceContext, config: Settings) -> None:

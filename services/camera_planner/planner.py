@@ -32,9 +32,9 @@ class PlannerParams(BaseModel):
     critical_angle_deg: float = Field(default=50.0, gt=0.0, lt=90.0, description="theta")
     release_deg: float = Field(default=15.0, ge=0.0, lt=90.0,
                                description="a hold is released below this view angle")
-    robot_radius_m: float = Field(default=0.08, gt=0.0)
-    humanoid_radius_m: float = Field(default=0.09, gt=0.0)
-    clearance_m: float = Field(default=0.02, ge=0.0)
+    robot_radius_m: float = Field(default=0.08, gt=0.0, description="the camera robot's disc")
+    humanoid_radius_m: float = Field(default=0.09, gt=0.0, description="the humanoid's disc")
+    clearance_m: float = Field(default=0.02, ge=0.0, description="kept from obstacles")
 
     @property
     def critical_angle_rad(self) -> float:

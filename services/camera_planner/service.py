@@ -23,9 +23,10 @@ Pose = tuple[float, float, float]
 class Settings(ServiceSettings, PlannerParams):
     """The planner's parameters (``PlannerParams``) and the service loop's own."""
 
-    rate_hz: float = Field(default=5.0, gt=0.0)
+    rate_hz: float = Field(default=5.0, gt=0.0, description="plans per second")
     smoothing: float = Field(default=0.5, gt=0.0, le=1.0, description="weight of a new goal")
-    deadband_m: float = Field(default=0.005, ge=0.0)
+    deadband_m: float = Field(default=0.005, ge=0.0,
+                              description="a goal that moved less is not sent again")
     pose_timeout_s: float = Field(default=1.0, gt=0.0,
                                   description="plan only from a pose that arrived this recently")
 

@@ -15,7 +15,8 @@ class Geometry(BaseModel):
     camera_height_m: float = Field(default=0.20, ge=0.0, description="optical centre above floor")
     camera_forward_m: float = Field(default=0.0, description="optical centre ahead of base origin")
     camera_pitch_rad: float = Field(default=0.0, ge=-1.2, le=1.2, description="down is positive")
-    marker_centre_height_m: float = Field(default=0.20, gt=0.0)
+    marker_centre_height_m: float = Field(default=0.20, gt=0.0,
+                                          description="rhombus centre above the floor")
     marker_back_offset_m: float = Field(default=0.05, ge=0.0,
                                         description="marker centre behind the humanoid origin")
     marker_width_m: float = Field(default=0.050, gt=0.0, description="horizontal diagonal")

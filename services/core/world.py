@@ -48,7 +48,8 @@ class World(BaseModel):
     """Obstacles on the floor; robots are discs of a given radius."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
-    obstacles: list[Obstacle] = Field(default_factory=list)
+    obstacles: list[Obstacle] = Field(default_factory=list, description=(
+        "world m: { kind = \"circle\", x, y, radius } or { kind = \"polygon\", points }"))
 
     def clearance(self, x: float, y: float) -> float:
         """Distance (m) from (x, y) to the nearest obstacle boundary (inf without obstacles)."""

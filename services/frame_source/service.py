@@ -37,21 +37,22 @@ STAMP_CLOCKS = {"grab": "the grab time", "container": "the video file's own time
 class Settings(ServiceSettings):
     source: str = Field(description="camera index, video file, URL, image folder or glob")
     fps: float = Field(default=30.0, gt=0.0, description="pace, and asked of a live camera")
-    loop: bool = True
-    jpeg_quality: int | None = Field(default=None, ge=10, le=100)
+    loop: bool = Field(default=True, description="a video file or folder starts again")
+    jpeg_quality: int | None = Field(default=None, ge=10, le=100,
+                                     description="transport encoding of camera/frame")
     width: int | None = Field(default=None, gt=0, description="frames out (px); with height")
-    height: int | None = Field(default=None, gt=0)
+    height: int | None = Field(default=None, gt=0, description="frames out (px); with width")
     fourcc: str | None = Field(default=None, min_length=4, max_length=4,
                                description="a live camera's pixel format, e.g. MJPG")
     auto_exposure: float | None = Field(default=None, description="V4L2: 1 manual, 3 auto")
-    exposure: float | None = None
-    auto_white_balance: bool | None = None
+    exposure: float | None = Field(default=None, description="manual exposure (device units)")
+    auto_white_balance: bool | None = Field(default=None, description="a live camera's")
     white_balance: float | None = Field(default=None, description="colour temperature (K)")
-    autofocus: bool | None = None
-    focus: float | None = None
+    autofocus: bool | None = Field(default=None, description="best off: focus fixed")
+    focus: float | None = Field(default=None, description="manual focus (device units)")
     intrinsics: RelPath | None = Field(default=None, description=(
         "calibration TOML; served on camera/intrinsics scaled to the frames published"))
-    retry_s: float = Field(default=1.0, gt=0.0)
+    retry_s: float = Field(default=1.0, gt=0.0, description="reopen a lost source after")
 
     @model_validator(mode="after")
     def _both_sides(self) -> Settings:

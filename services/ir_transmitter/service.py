@@ -44,14 +44,18 @@ class Settings(ServiceSettings, FreshnessParams):
     """The freshness gate's parameters (``FreshnessParams``, the dead-man's among them) and
     the transmitter's own."""
 
-    backend: BackendName = "log"
-    options: dict[str, Any] = Field(default_factory=dict)
+    backend: BackendName = Field(default="log", description=(
+        "serial (the Arduino), lirc, sim (the simulator) or log (only logs)"))
+    options: dict[str, Any] = Field(default_factory=dict, description=(
+        "the backend's: serial { port, baud, ... }, lirc { socket, remote, timeout_s }"))
     allowed: list[BackendChoice] = Field(default_factory=list, description=(
         "what a put on ir/backend may switch to, besides the backend above (exactly these "
         "options); anything else is rejected"))
     min_gap_s: float = Field(default=0.06, ge=0.0, description="between IR frames (>= 30 ms)")
-    repeat_window_s: float = Field(default=0.5, ge=0.0)
-    fresh_s: float = Field(default=1.0, gt=0.0)
+    repeat_window_s: float = Field(default=0.5, ge=0.0, description=(
+        "a repeat of the command last sent this soon is coalesced"))
+    fresh_s: float = Field(default=1.0, gt=0.0,
+                           description="after a lost device returns, resend only this young")
     heartbeat_s: float = Field(default=0.15, gt=0.0, le=0.3,
                                description="heartbeat to the firmware's 0.4 s watchdog")
     controller: str = Field(default="mission_controller", description=(

@@ -46,7 +46,11 @@ class ControlParams(BaseModel):
     settle_s: float = Field(default=0.9, ge=0.0, description="after a stop, before judging")
     correction_s: float = Field(default=0.1, ge=0.0, description=(
         "how long a correction's walk command stands before stop (one step follows)"))
-    max_corrections: int = Field(default=2, ge=0)
+    max_corrections: int = Field(default=2, ge=0,
+                                 description="single steps to correct an overshoot, at most")
+    uncertain_wait_s: float = Field(default=0.5, ge=0.0, description=(
+        "no turn is decided on a heading whose sigma exceeds k: wait this long at most for "
+        "a surer one (s)"))
     pose_timeout_s: float = Field(default=0.3, gt=0.0,
                                   description="stop when the pose arrived longer ago (s)")
 
@@ -84,6 +88,8 @@ class HeuristicController:
     _last_turn: Command | None = None
     _correction: Command = Command.STOP   # the walk of the correction under way
     done_reason: str = ""                 # how the last waypoint was reached
+    _heading_sigma: float | None = None
+    _uncertain_since: float | None = None  # waiting for a surer heading since
 
     def set_waypoints(self, waypoints: list[tuple[float, float]]) -> None:
         self.waypoints, self.index, self.corrections = list(waypoints), 0, 0
@@ -91,11 +97,14 @@ class HeuristicController:
         self.phase = Phase.IDLE if not waypoints else Phase.WAITING_POSE
 
     def decide(self, pose: tuple[float, float, float] | None, pose_age_s: float,
-               hold: bool, now_s: float | None = None, stale: str = "") -> Decision:
+               hold: bool, now_s: float | None = None,
+               heading_sigma_rad: float | None = None, stale: str = "") -> Decision:
         """One control step. ``pose`` is (x m, y m, yaw rad) in the world, or None;
-        ``now_s`` a monotonic time (the simulator's in direct loops); ``stale`` why the pose
-        must not be steered by although young (e.g. held in a buffer during a network cut)."""
+        ``now_s`` a monotonic time (the simulator's in direct loops); ``heading_sigma_rad``
+        the pose's heading standard deviation, when known; ``stale`` why the pose must not be
+        steered by although young (e.g. held in a buffer during a network cut)."""
         now = time.monotonic() if now_s is None else now_s
+        self._heading_sigma = heading_sigma_rad
         if stale and self.index < len(self.waypoints):
             self.phase = Phase.WAITING_POSE
             d = Decision(Command.STOP, Phase.WAITING_POSE, self.index, reason=stale)
@@ -158,7 +167,19 @@ class HeuristicController:
             return self._reached(pose, hold, now, e, alpha, along)
         if e >= p.near_m:
             limit = p.turn_release_rad if self.phase is Phase.TURNING else p.turn_threshold_rad
+            if abs(alpha) > limit and self.phase is not Phase.TURNING and \
+                    self._heading_sigma is not None and \
+                    self._heading_sigma > p.turn_threshold_rad:
+                if self._uncertain_since is None:
+                    self._uncertain_since = now
+                if now - self._uncertain_since < p.uncertain_wait_s:
+                    return Decision(Command.STOP, self.phase, self.index, e, alpha,
+                                    f"heading uncertain (sigma "
+                                    f"{math.degrees(self._heading_sigma):.0f}° > k): waiting")
+            else:
+                self._uncertain_since = None
             if abs(alpha) > limit:
+                self._uncertain_since = None
                 self.phase = Phase.TURNING
                 cmd = Command.TURN_LEFT if alpha > 0 else Command.TURN_RIGHT
                 return Decision(cmd, Phase.TURNING, self.index, e, alpha,

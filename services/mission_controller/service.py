@@ -10,6 +10,7 @@ judges its freshness (issue 20).
 from __future__ import annotations
 
 import itertools
+import math
 import secrets
 import time
 from typing import Literal
@@ -28,7 +29,7 @@ from services.runtime.context import ServiceContext
 class Settings(ServiceSettings, ControlParams):
     """The controller's parameters (``ControlParams``) and the service loop's own."""
 
-    rate_hz: float = Field(default=10.0, gt=0.0, le=200.0)
+    rate_hz: float = Field(default=10.0, gt=0.0, le=200.0, description="decisions per second")
     waypoints: list[tuple[float, float]] = Field(default_factory=list,
                                                  description="initial mission, world m")
     pose_topic: Literal["humanoid/pose", "humanoid/pose_filtered"] = Field(
@@ -59,6 +60,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
     last_cmd: Command | None = None
     last_sent = 0.0
     pose: tuple[float, float, float] | None = None
+    heading_sigma: float | None = None
     hold = False
     origin: tuple[float, float] | None = None  # where the current leg started (loop)
     ticker = Ticker(1.0 / config.rate_hz)
@@ -89,6 +91,8 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                 fresh.arrived(p.stamp_ns, poses.last_received_ns)
             if p is not None and p.x is not None and p.y is not None and p.yaw is not None:
                 pose = (p.x, p.y, p.yaw)
+                heading_sigma = math.sqrt(max(p.covariance[2][2], 0.0)) \
+                    if p.covariance is not None else None
                 if origin is None:
                     origin = (p.x, p.y)
             if (h := holds.get_nowait()) is not None:
@@ -99,7 +103,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
             try:
                 now_ns = time.time_ns()
                 d = ctrl.decide(pose, fresh.age_s(now_ns), hold, time.monotonic(),
-                                stale=fresh.why_stale(now_ns))
+                                heading_sigma, stale=fresh.why_stale(now_ns))
             except Exception:
                 log.exception("control step failed; stopping the humanoid")
                 send(Command.STOP)

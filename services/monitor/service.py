@@ -36,10 +36,12 @@ PAPER_REACHED_CM = (3.3, 4.8, 58.2)
 class Settings(ServiceSettings):
     goal: tuple[float, float] | None = Field(default=None, description="world m, for the report")
     run_dir: Path | None = Field(default=Path("runs"), description="parent of run folders")
-    exit_when_done: bool = True
-    settle_s: float = Field(default=1.5, ge=0.0)
-    success_tolerance_m: float = Field(default=0.03, gt=0.0)
-    progress: bool = True
+    exit_when_done: bool = Field(default=True,
+                                 description="end the deployment after the summary")
+    settle_s: float = Field(default=1.5, ge=0.0, description="wait when done, then judge")
+    success_tolerance_m: float = Field(default=0.03, gt=0.0,
+                                       description="exit 0 when the humanoid ends this near")
+    progress: bool = Field(default=True, description="print a progress line every second")
 
 
 class Recorder:

@@ -8,7 +8,8 @@ given to the track whose last rotation is nearer, and adds its cost to it, the r
 error in units of the vertex noise plus the upright prior, with a forgetting factor. The
 estimator follows the cheaper track; while the two differ by less than ``decide_cost`` it says
 so (``ambiguous``). A candidate far from both tracks (the marker lost and found elsewhere)
-starts afresh, so unrelated frames pay nothing for the tracking.
+starts afresh, so unrelated frames pay nothing for the tracking. Where the two branches meet
+(``crossed``), the past evidence counts for neither: the caller (``sequence``) says when.
 """
 
 from __future__ import annotations
@@ -19,6 +20,8 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from services.core.camera import CameraModel
+from services.pose_estimator.estimate import TILT_HUBER_SIGMAS
+from services.pose_estimator.p4p import prior_cost
 
 
 def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
@@ -52,9 +55,19 @@ class BranchTracker:
     max_move_m: float = 0.05
     tracks: list[_Track] = field(default_factory=list)
     position: np.ndarray | None = None
+    skipped: bool = False  # the last frame's candidates could not be told apart
+
 
     def reset(self) -> None:
         self.tracks, self.position = [], None
+
+    def crossed(self) -> None:
+        """The two branches met (their poses within the noise): which track continues which
+        branch is unknown from here, so the evidence gathered before counts for neither."""
+        if self.tracks:
+            low = min(t.cost for t in self.tracks)
+            for t in self.tracks:
+                t.cost = low
 
     def update(self, candidates: list[tuple[np.ndarray, float]], position: np.ndarray
                ) -> tuple[np.ndarray | None, bool]:
@@ -71,9 +84,11 @@ class BranchTracker:
                 min(rotation_angle(t.R, R) for t in self.tracks) for R, _ in candidates
         ) > self.max_jump_rad:
             self.tracks = [_Track(R, cost) for R, cost in candidates]
+            self.skipped = False
             return None, len(candidates) > 1
         else:
             order = self._assign([R for R, _ in candidates])
+            self.skipped = order is None
             if order is not None:  # a frame whose candidates do not say which is which: skip
                 for track, (R, cost) in zip(order, candidates, strict=True):
                     track.R, track.cost = R, self.forget * track.cost + cost
@@ -103,6 +118,6 @@ def candidate_cost(camera: CameraModel, T_camera_marker: np.ndarray, points: np.
     projected = camera.project(points @ R.T + t)
     cost = float(np.sum((projected - vertices_px) ** 2)) / sigma_px ** 2
     if up_cam is not None:
-        tilt = math.asin(max(-1.0, min(1.0, float(R[:, 2] @ up_cam))))
-        cost += (tilt / tilt_sigma_rad) ** 2
+        cost += prior_cost(float(R[:, 2] @ up_cam), 1.0 / tilt_sigma_rad,
+                           math.sin(TILT_HUBER_SIGMAS * tilt_sigma_rad))
     return cost

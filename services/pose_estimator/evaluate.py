@@ -16,9 +16,15 @@ import cv2
 import numpy as np
 
 from services.core.camera import CameraModel, undistort_px
-from services.core.geometry import T_base_camera, T_floor, inv_T, make_T, rot_y, rot_z
+from services.core.geometry import T_base_camera, T_floor, inv_T, make_T, rot_x, rot_y, rot_z
 from services.core.mounts import Geometry
-from services.pose_estimator.estimate import VERTEX_SIGMA_PX, estimate_marker_pose, up_in_camera
+from services.pose_estimator.estimate import (
+    TILT_HUBER_SIGMAS,
+    TILT_SIGMA_DEG,
+    VERTEX_SIGMA_PX,
+    estimate_marker_pose,
+    up_in_camera,
+)
 from services.pose_estimator.p4p import ippe, posterior_cost, refine
 
 
@@ -31,8 +37,12 @@ class PoseCase:
 
 
 def pose_cases(n: int, seed: int = 0, camera: CameraModel | None = None,
-               noise_px: tuple[float, float] = (0.1, 1.0), lean_deg: float = 2.0
-               ) -> list[PoseCase]:
+               noise_px: tuple[float, float] = (0.1, 1.0), lean_deg: float = 2.0,
+               roll_deg: float = 0.0, mount_error_deg: float = 0.0) -> list[PoseCase]:
+    """Views of the system's geometry. ``lean_deg``: the marker pitched up to this forward or
+    back; ``roll_deg``: rolled up to this sideways (both break the upright prior);
+    ``mount_error_deg``: the up vector given to the estimator comes from a mount pitched
+    and rolled this much off the true one (a deployment file that is off)."""
     camera = camera or CameraModel.paper()
     g = Geometry()
     pts = g.marker_points()
@@ -47,13 +57,18 @@ def pose_cases(n: int, seed: int = 0, camera: CameraModel | None = None,
         hx, hy = mx + g.marker_back_offset_m * math.cos(yaw), my + g.marker_back_offset_m * \
             math.sin(yaw)
         sway = make_T(rot_z(math.radians(rng.uniform(-3, 3))), (0, 0, 0))
-        lean = make_T(rot_y(math.radians(rng.uniform(-lean_deg, lean_deg))), (0, 0, 0))
+        lean = make_T(rot_y(math.radians(rng.uniform(-lean_deg, lean_deg))) @ rot_x(
+            math.radians(rng.uniform(-roll_deg, roll_deg))), (0, 0, 0))
         T = inv_T(T_bc) @ T_floor(hx, hy, yaw) @ lean @ g.T_humanoid_marker() @ sway
         v = camera.project((T[:3, :3] @ pts.T).T + T[:3, 3])
         if T[2, 3] < 0.1 or np.any(v < 5) or np.any(v > [camera.width - 6, camera.height - 6]):
             continue
         sigma = rng.uniform(*noise_px)
-        out.append(PoseCase(T, v + rng.normal(0, sigma, v.shape), up_in_camera(T_bc), sigma))
+        up = up_in_camera(T_bc)
+        if mount_error_deg > 0:
+            a = math.radians(mount_error_deg)
+            up = rot_x(a * rng.choice([-1, 1])) @ rot_z(rng.uniform(-a, a)) @ up
+        out.append(PoseCase(T, v + rng.normal(0, sigma, v.shape), up, sigma))
     return out
 
 
@@ -89,6 +104,56 @@ def ours_solver(camera: CameraModel, refine: bool = True, sigma_px: float | None
                                     ).T_camera_marker
     return solve
 
+
+
+def unrelated_views(n: int, seed: int = 0, *, lean_deg: float = 3.0, roll_deg: float = 0.0,
+                    mount_off_deg: float = 0.0, noise_px: float = 0.3,
+                    camera: CameraModel | None = None) -> list[PoseCase]:
+    """Unrelated views of the humanoid in front of a camera at the marker's height (the
+    deployment's geometry): 15-80 cm, bearing within ±17°, heading within ±40° of the line
+    of sight; the marker leaning forward or back up to ``lean_deg`` and sideways up to
+    ``roll_deg``; the real mount pitched ±``mount_off_deg`` from the file's, whose up
+    vector the estimator is given; ``noise_px`` on every vertex coordinate."""
+    camera = camera or CameraModel.paper()
+    g = Geometry()
+    pts = g.marker_points()
+    T_file = g.T_base_camera()
+    rng = np.random.default_rng(seed)
+    out: list[PoseCase] = []
+    while len(out) < n:
+        dist, bearing = rng.uniform(0.15, 0.8), rng.uniform(-0.3, 0.3)
+        yaw = bearing + math.radians(rng.uniform(-40, 40))
+        tilt = make_T(rot_y(math.radians(rng.uniform(-lean_deg, lean_deg))) @ rot_x(
+            math.radians(rng.uniform(-roll_deg, roll_deg))), (0, 0, 0))
+        T_real = T_file if mount_off_deg == 0 else T_base_camera(
+            g.camera_forward_m, g.camera_height_m,
+            g.camera_pitch_rad + math.radians(mount_off_deg * rng.choice([-1, 1])))
+        T = inv_T(T_real) @ T_floor(dist * math.cos(bearing) + g.marker_back_offset_m *
+                                    math.cos(yaw), dist * math.sin(bearing) +
+                                    g.marker_back_offset_m * math.sin(yaw), yaw) @ tilt @ \
+            g.T_humanoid_marker()
+        v = camera.project(pts @ T[:3, :3].T + T[:3, 3])
+        if T[2, 3] > 0.1 and np.all(v > 5) and np.all(v < [camera.width - 6,
+                                                          camera.height - 6]):
+            out.append(PoseCase(T, v + rng.normal(0, noise_px, v.shape), up_in_camera(T_file),
+                                noise_px))
+    return out
+
+
+def against_ippe(cases: list[PoseCase], camera: CameraModel | None = None,
+                 **estimator: float) -> tuple[float, float]:
+    """Position error of our estimator (the service's vertex sigma, the views' up vector,
+    ``estimator`` keyword arguments) over OpenCV's IPPE on the same vertices: (median
+    ratio, p90 ratio)."""
+    camera = camera or CameraModel.paper()
+    pts = Geometry().marker_points()
+    cv = opencv_solver(cv2.SOLVEPNP_IPPE, camera)
+    ours = np.array([_errors(estimate_marker_pose(
+        camera, c.vertices_px, pts, up_cam=c.up_cam, sigma_px=VERTEX_SIGMA_PX,
+        **estimator).T_camera_marker, c.T_camera_marker)[0] for c in cases])  # type: ignore[arg-type]
+    ref = np.array([_errors(cv(c), c.T_camera_marker)[0] for c in cases])
+    return (float(np.median(ours) / np.median(ref)),
+            float(np.percentile(ours, 90) / np.percentile(ref, 90)))
 
 
 def compare(cases: list[PoseCase], camera: CameraModel | None = None
@@ -135,7 +200,7 @@ def _tilt(T: np.ndarray, up_cam: np.ndarray) -> float:
 
 
 def wrong_branches(cases: list[PoseCase], camera: CameraModel | None = None,
-                   tilt_sigma_rad: float = math.radians(3.0), margin: float = 4.0,
+                   tilt_sigma_rad: float = math.radians(TILT_SIGMA_DEG), margin: float = 4.0,
                    prior: bool = True) -> BranchReport:
     """Branch choices of the estimator (upright prior on unless ``prior`` is False; no
     continuity prior).
@@ -169,9 +234,10 @@ def wrong_branches(cases: list[PoseCase], camera: CameraModel | None = None,
         if is_wrong:
             q = undistort_px(camera, c.vertices_px)
             w = c.noise_px / f / tilt_sigma_rad if prior else 0.0
-            chosen = posterior_cost(T[:3, :3].copy(), T[:3, 3].copy(), pts, q, c.up_cam, w)
+            h = math.sin(TILT_HUBER_SIGMAS * tilt_sigma_rad)
+            chosen = posterior_cost(T[:3, :3].copy(), T[:3, 3].copy(), pts, q, c.up_cam, w, h)
             R, t, _, truth_side = refine(T_true[:3, :3].copy(), T_true[:3, 3].copy(), pts, q,
-                                         30, c.up_cam, w)
+                                         30, c.up_cam, w, h)
             T_side = make_T(R, t)
             misses += int(truth_side < 0.999 * chosen and
                           _errors(T_side, T_true)[1] < _errors(T_side, mirror)[1])

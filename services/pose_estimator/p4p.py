@@ -396,30 +396,50 @@ def _solve_spd(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     return x
 
 
+@njit(inline="always")
+def huber_weight(tilt: float, huber: float) -> float:
+    """IRLS weight of the prior residual: 1 within ``huber`` (sine of the tilt), falling as
+    (huber / |tilt|)² beyond it (a heavy-tailed, Cauchy-like prior); ``huber <= 0``: 1."""
+    a = abs(tilt)
+    return 1.0 if huber <= 0.0 or a <= huber else (huber / a) ** 2
+
+
+@njit(inline="always")
+def prior_cost(tilt: float, prior_w: float, huber: float) -> float:
+    """``(prior_w * tilt)²`` within ``huber``, growing only logarithmically beyond it."""
+    a = abs(tilt)
+    if huber <= 0.0 or a <= huber:
+        return (prior_w * tilt) ** 2
+    return prior_w * prior_w * huber * huber * (1.0 + 2.0 * math.log(a / huber))
+
+
 @njit()
 def posterior_cost(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray,
-                   up: np.ndarray, prior_w: float) -> float:
-    """Sum of squared reprojection residuals plus ``(prior_w * tilt)²`` (normalised units)."""
+                   up: np.ndarray, prior_w: float, huber: float) -> float:
+    """Sum of squared reprojection residuals plus the upright prior's cost (normalised
+    units): ``(prior_w * tilt)²``, heavy-tailed beyond ``huber`` (0: quadratic throughout)."""
     rms = reprojection_rms(R, t, model, q)
     if not math.isfinite(rms):
         return np.inf
     tilt = R[0, 2] * up[0] + R[1, 2] * up[1] + R[2, 2] * up[2]
-    return rms * rms * q.shape[0] + (prior_w * tilt) ** 2
+    return rms * rms * q.shape[0] + prior_cost(tilt, prior_w, huber)
 
 
 @njit()
 def refine(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray, iterations: int,
-           up: np.ndarray, prior_w: float
+           up: np.ndarray, prior_w: float, huber: float
            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, float]:
     """Gauss-Newton on the reprojection error, with an upright prior when ``prior_w > 0``.
 
     The prior adds the residual ``prior_w * (n . up)``, n the marker normal (R's third
     column) and ``up`` the world's up in the camera frame: with ``prior_w = sigma_image /
     sigma_tilt`` the cost is the negative log posterior (times sigma_image²) of a marker
-    whose normal is level within sigma_tilt. Returns R, t, the reprojection Jacobian
-    (2N, 6) and the final cost (sum of squared residuals, normalised units).
+    whose normal is level within sigma_tilt; beyond ``huber`` (sine of the tilt, 0: never)
+    the prior's tails are heavy (by reweighting, see ``prior_cost``), so a marker that leans, or
+    a mount a little off, costs little. Returns R, t, the reprojection Jacobian (2N, 6) and
+    the final cost (sum of squared residuals, normalised units).
     """
-    cost = posterior_cost(R, t, model, q, up, prior_w)
+    cost = posterior_cost(R, t, model, q, up, prior_w, huber)
     JTJ = np.empty((6, 6))
     g = np.empty(6)
     row = np.empty(6)
@@ -427,12 +447,13 @@ def refine(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray, itera
         _normal_equations(R, t, model, q, JTJ, g)
         if prior_w > 0:
             tilt = R[0, 2] * up[0] + R[1, 2] * up[1] + R[2, 2] * up[2]
+            w = prior_w * math.sqrt(huber_weight(tilt, huber))
             # d(n . up)/dw = n x up for a left increment
-            row[0] = prior_w * (R[1, 2] * up[2] - R[2, 2] * up[1])
-            row[1] = prior_w * (R[2, 2] * up[0] - R[0, 2] * up[2])
-            row[2] = prior_w * (R[0, 2] * up[1] - R[1, 2] * up[0])
+            row[0] = w * (R[1, 2] * up[2] - R[2, 2] * up[1])
+            row[1] = w * (R[2, 2] * up[0] - R[0, 2] * up[2])
+            row[2] = w * (R[0, 2] * up[1] - R[1, 2] * up[0])
             for a in range(3):
-                g[a] += row[a] * prior_w * tilt
+                g[a] += row[a] * w * tilt
                 for b in range(3):
                     JTJ[a, b] += row[a] * row[b]
         delta = _solve_spd(JTJ, g)
@@ -440,7 +461,7 @@ def refine(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray, itera
             break
         R_new = exp_so3(delta[:3]) @ R
         t_new = t + delta[3:]
-        new_cost = posterior_cost(R_new, t_new, model, q, up, prior_w)
+        new_cost = posterior_cost(R_new, t_new, model, q, up, prior_w, huber)
         if new_cost > cost:
             break
         converged = cost - new_cost <= 1e-9 * cost
@@ -469,7 +490,7 @@ def rotation_angle(Ra: np.ndarray, Rb: np.ndarray) -> float:
 
 @njit()
 def map_pose(model: np.ndarray, q: np.ndarray, steps: int, up: np.ndarray, prior_w: float,
-             previous_R: np.ndarray, continuity_w: float, ambiguity_n: float
+             previous_R: np.ndarray, continuity_w: float, ambiguity_n: float, huber: float
              ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, int, np.ndarray, np.ndarray,
                         int]:
     """IPPE, then the maximum a posteriori candidate, refined.
@@ -492,7 +513,7 @@ def map_pose(model: np.ndarray, q: np.ndarray, steps: int, up: np.ndarray, prior
     chosen = 0
     R_best, t_best, J_best = Rs[0].copy(), ts[0].copy(), np.zeros((2 * q.shape[0], 6))
     for i in range(2 if ambiguous else 1):
-        R, t, J, cost = refine(Rs[i].copy(), ts[i].copy(), model, q, steps, up, prior_w)
+        R, t, J, cost = refine(Rs[i].copy(), ts[i].copy(), model, q, steps, up, prior_w, huber)
         if continuity_w > 0:
             cost += (continuity_w * rotation_angle(R, previous_R)) ** 2
         if i == 0 or cost < best:

@@ -29,7 +29,7 @@ class FilterParams(BaseModel):
         "x m, y m, yaw rad: how far the marker moves about the body in the gait (its rock), "
         "added to each measurement's own covariance"))
     gate_sigma: float = Field(default=5.0, gt=0.0, description="restart beyond this")
-    max_gap_s: float = Field(default=1.0, gt=0.0)
+    max_gap_s: float = Field(default=1.0, gt=0.0, description="restart after a longer gap")
     default_sigma: tuple[float, float, float] = Field(
         default=(0.005, 0.005, 0.02), description="x m, y m, yaw rad when none is given")
 

@@ -20,11 +20,9 @@ from schemas import (
 from schemas.keys import HUMANOID_POSE, HUMANOID_POSE_FILTERED, INTRINSICS, ODOM, VERTICES
 from services.core.camera import CameraModel
 from services.core.geometry import T_floor, inv_T, quaternion_from_R
-from services.pose_estimator.branches import BranchTracker, candidate_cost, rotation_angle
 from services.pose_estimator.estimate import (
+    TILT_SIGMA_DEG,
     VERTEX_SIGMA_PX,
-    MarkerPose,
-    estimate_marker_pose,
     humanoid_floor_pose,
     up_in_camera,
     warm_up,
@@ -32,6 +30,14 @@ from services.pose_estimator.estimate import (
 from services.pose_estimator.odometry import OdometryBuffer
 from services.pose_estimator.p4p import PoseError
 from services.pose_estimator.pose_filter import FilterParams, PoseFilter
+from services.pose_estimator.sequence import (
+    CONTINUITY_WINDOW_S,
+    NOISE_SIGMA_PX,
+    ROCK_SIGMA_DEG,
+    SCALE_SIGMA_PX,
+    MarkerSequence,
+    SequenceParams,
+)
 from services.runtime.config import RelPath, ServiceSettings
 from services.runtime.context import ServiceContext
 
@@ -45,15 +51,23 @@ class Settings(ServiceSettings):
                                description="wait this long for odometry at the frame's stamp (s)")
     static_camera_pose: tuple[float, float, float] | None = Field(
         default=None, description="x m, y m, yaw rad of a camera that does not move")
-    refine: bool = True
+    refine: bool = Field(default=True, description="Gauss-Newton to the MAP pose")
     vertex_sigma_px: float = Field(default=VERTEX_SIGMA_PX, gt=0.0,
                                    description="vertex noise, 1-sigma px")
-    tilt_sigma_deg: float = Field(default=3.0, gt=0.0, le=45.0,
+    tilt_sigma_deg: float = Field(default=TILT_SIGMA_DEG, gt=0.0, le=45.0,
                                   description="upright prior: marker normal level within (deg)")
+    noise_sigma_px: float = Field(default=NOISE_SIGMA_PX, gt=0.0, description=(
+        "the covariance's vertex noise (1-sigma px per coordinate) when the extractor sends "
+        "no per-vertex covariance"))
+    scale_sigma_px: float = Field(default=SCALE_SIGMA_PX, ge=0.0, description=(
+        "the covariance's common scale error of the rhombus (1-sigma px at each vertex)"))
     filter: FilterParams = Field(default_factory=FilterParams, description=(
         "the steady pose published on humanoid/pose_filtered"))
-    continuity_window_s: float = Field(default=0.3, ge=0.0,
+    continuity_window_s: float = Field(default=CONTINUITY_WINDOW_S, ge=0.0,
                                        description="use the previous pose this recent as a prior")
+    rock_sigma_deg: float = Field(default=ROCK_SIGMA_DEG, ge=0.0, le=20.0, description=(
+        "the marker's roll about its normal with the gait (1-sigma, deg): the body rocks "
+        "about its feet, moving the floor position the marker implies"))
 
 
 class PoseEstimator:
@@ -68,9 +82,14 @@ class PoseEstimator:
         self.up_cam = up_in_camera(self.T_base_camera)
         self.odom = OdometryBuffer(maxlen=64)
         self.odom_stalled = False  # the last wait for odometry ran out; none since
-        self._previous: tuple[int, np.ndarray] | None = None  # (stamp_ns, R) of the last pose
         self.steady = PoseFilter(config.filter)
-        self.branches = BranchTracker()
+        self._mount_told: tuple[float, float] | None = None
+        self.sequence = MarkerSequence(camera, self.points, self.up_cam, SequenceParams(
+            continuity_window_s=config.continuity_window_s,
+            vertex_sigma_px=config.vertex_sigma_px,
+            tilt_sigma_rad=math.radians(config.tilt_sigma_deg), refine=config.refine,
+            rock_sigma_rad=math.radians(config.rock_sigma_deg),
+            noise_sigma_px=config.noise_sigma_px, scale_sigma_px=config.scale_sigma_px))
 
     def estimate(self, msg: MarkerVertices) -> HumanoidPose:
         """Raises PoseError when the vertices give no pose (or one no message can carry)."""
@@ -85,35 +104,10 @@ class PoseEstimator:
         if msg.width and (msg.width, msg.height) != (self.camera.width, self.camera.height):
             raise PoseError(f"frame is {msg.width}x{msg.height} but the intrinsics are for "
                             f"{self.camera.width}x{self.camera.height}")
-        recent = self._previous is not None and \
-            abs(msg.stamp_ns - self._previous[0]) < self.config.continuity_window_s * 1e9
-        if not recent:
-            self.branches.reset()
-        v = np.array(msg.vertices_px, dtype=np.float64)
-        tilt_sigma = math.radians(self.config.tilt_sigma_deg)
-
-        def solve(previous_R: np.ndarray | None, sigma_deg: float = 10.0) -> MarkerPose:
-            return estimate_marker_pose(
-                self.camera, v, self.points, up_cam=self.up_cam,
-                refine_steps=5 if self.config.refine else 0,
-                sigma_px=self.config.vertex_sigma_px, tilt_sigma_rad=tilt_sigma,
-                previous_R=previous_R, continuity_sigma_rad=math.radians(sigma_deg))
-        mp = solve(self._previous[1] if recent and self._previous else None)
-        last = self.branches.position
-        if recent and last is not None and float(np.linalg.norm(
-                mp.T_camera_marker[:3, 3] - last)) > self.branches.max_move_m:
-            mp = solve(None)  # the marker jumped: an unrelated view owes nothing to the last
-        follow, ambiguous = self.branches.update([
-            (c[:3, :3], candidate_cost(self.camera, c, self.points, v,
-                                       self.config.vertex_sigma_px, self.up_cam, tilt_sigma))
-            for c in mp.candidates], mp.T_camera_marker[:3, 3])
-        if follow is not None and rotation_angle(follow, mp.T_camera_marker[:3, :3]) > \
-                math.radians(10.0):
-            mp = solve(follow, 3.0)  # the frame alone chose the other branch: follow the track
-        T = mp.T_camera_marker
-        self._previous = (msg.stamp_ns, T[:3, :3])
-        note = ("ambiguous: the mirror pose fits nearly as well; following the better track"
-                if ambiguous else "")
+        self.sequence.camera = self.camera
+        mp = self.sequence.update(msg.stamp_ns, np.array(msg.vertices_px, dtype=np.float64),
+                                  msg.vertices_cov_px2)
+        T, note = mp.T_camera_marker, mp.reason
         marker = MarkerInCamera(position=tuple(T[:3, 3].tolist()),  # type: ignore[arg-type]
                                 quaternion=quaternion_from_R(T[:3, :3]))
         base_pose, reason = self._camera_base_pose(msg.stamp_ns)
@@ -130,6 +124,19 @@ class PoseEstimator:
                             marker_in_camera=marker, reprojection_px=mp.reprojection_px,
                             covariance=cov_rows, area_ratio=msg.area_ratio,  # type: ignore[arg-type]
                             reason=note)
+
+    def mount_warning(self) -> str:
+        """A message the first time the frames say the camera mount is off the deployment
+        file's (and again whenever that estimate moves by more than 2°), else ""."""
+        mount = self.sequence.mount
+        off = mount.offset_deg() if mount is not None else None
+        if mount is None or off is None or not (message := mount.message()):
+            return ""
+        if self._mount_told is not None and math.hypot(
+                off[0] - self._mount_told[0], off[1] - self._mount_told[1]) <= 2.0:
+            return ""
+        self._mount_told = off
+        return message
 
     def filtered(self, pose: HumanoidPose) -> HumanoidPose | None:
         """The steady counterpart of a world pose (None while the world pose is unknown)."""
@@ -214,5 +221,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                 log.warning("no pose for frame %d: %s", msg.seq, err)
             continue
         bus.put(HUMANOID_POSE, pose)
+        if warning := est.mount_warning():
+            log.warning("%s", warning)
         if (steady := est.filtered(pose)) is not None:
             bus.put(HUMANOID_POSE_FILTERED, steady)

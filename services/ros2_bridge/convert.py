@@ -1,17 +1,20 @@
 """Shepherd messages to and from ROS 2 messages (rosbags' classes; no Zenoh inside).
 
-World frame ``world`` (z up), the humanoid ``humanoid``, the camera robot's base
-``camera_base`` (REP-103). Stamps to the nanosecond; angles in rad; metres.
+Frames are named by the caller (``frames.Tree``); stamps to the nanosecond; angles in rad;
+metres.
 """
 
 from __future__ import annotations
 
+import logging
 import math
 from typing import Any
 
 import numpy as np
 
 from schemas import CameraGoal, CameraIntrinsics, CameraPose, HumanoidPose, MissionGoal
+from services.core.geometry import quaternion_from_R
+from services.ros2_bridge.frames import Tree
 from services.ros2_bridge.rmw import typestore
 
 POSE_COV = "geometry_msgs/msg/PoseWithCovarianceStamped"
@@ -20,6 +23,7 @@ TF = "tf2_msgs/msg/TFMessage"
 ODOMETRY = "nav_msgs/msg/Odometry"
 IMAGE = "sensor_msgs/msg/CompressedImage"
 CAMERA_INFO = "sensor_msgs/msg/CameraInfo"
+LOG = "rcl_interfaces/msg/Log"
 #: variance given to z, roll and pitch of a floor pose (fixed by the floor: tiny, not zero,
 #: so that viewers can invert the matrix)
 FLOOR_VARIANCE = 1e-9
@@ -94,31 +98,44 @@ def transform(stamp_ns_: int, parent: str, child: str, x: float, y: float, yaw: 
             rotation=yaw_quaternion(yaw)))
 
 
+def transform_T(stamp_ns_: int, parent: str, child: str, T_parent_child: np.ndarray) -> Any:
+    """TransformStamped of a 4x4 rigid transform (the child's pose in the parent)."""
+    x, y, z, w = quaternion_from_R(T_parent_child[:3, :3])
+    tx, ty, tz = (float(v) for v in T_parent_child[:3, 3])
+    return _t("geometry_msgs/msg/TransformStamped")(
+        header=header(stamp_ns_, parent), child_frame_id=child,
+        transform=_t("geometry_msgs/msg/Transform")(
+            translation=_t("geometry_msgs/msg/Vector3")(x=tx, y=ty, z=tz),
+            rotation=_t("geometry_msgs/msg/Quaternion")(x=x, y=y, z=z, w=w)))
+
+
 def tf_message(transforms: list[Any]) -> Any:
     return _t(TF)(transforms=transforms)
 
 
-def camera_goal(msg: CameraGoal, world_frame: str) -> Any:
-    """PoseStamped of where the camera robot should stand (e.g. for Nav2's /goal_pose)."""
-    return _t(POSE)(header=header(msg.stamp_ns, world_frame),
-                    pose=_pose(msg.x, msg.y, msg.yaw))
+def camera_goal(msg: CameraGoal, tree: Tree, goal_frame: str) -> Any:
+    """PoseStamped of where the camera robot should stand (e.g. for Nav2's /goal_pose),
+    expressed in ``goal_frame`` (UnknownFrameError if the tree cannot reach it)."""
+    x, y, yaw = tree.from_world(goal_frame, (msg.x, msg.y, msg.yaw))
+    return _t(POSE)(header=header(msg.stamp_ns, goal_frame), pose=_pose(x, y, yaw))
 
 
-def odometry_to_camera_pose(odom: Any, T_world_odom: tuple[float, float, float]) -> CameraPose:
-    """``camera/odom`` from a nav_msgs/Odometry: its pose (in the odometry frame) moved into
-    the world by the fixed (x m, y m, yaw rad) of the odometry frame in the world."""
-    p, q = odom.pose.pose.position, odom.pose.pose.orientation
-    ox, oy, oyaw = T_world_odom
-    c, s = math.cos(oyaw), math.sin(oyaw)
-    yaw = math.atan2(math.sin(quaternion_yaw(q) + oyaw), math.cos(quaternion_yaw(q) + oyaw))
-    return CameraPose(stamp_ns=stamp_ns(odom.header.stamp), x=ox + c * p.x - s * p.y,
-                      y=oy + s * p.x + c * p.y, yaw=yaw)
+def _floor(pose: Any) -> tuple[float, float, float]:
+    return (float(pose.position.x), float(pose.position.y), quaternion_yaw(pose.orientation))
 
 
-def pose_to_mission_goal(pose: Any) -> MissionGoal:
-    """A PoseStamped goal (its position) as a one-waypoint mission."""
-    return MissionGoal(stamp_ns=stamp_ns(pose.header.stamp),
-                       waypoints=[(float(pose.pose.position.x), float(pose.pose.position.y))])
+def odometry_to_camera_pose(odom: Any, tree: Tree) -> CameraPose:
+    """``camera/odom`` from a nav_msgs/Odometry: its pose, in its header's frame, moved into
+    the world (UnknownFrameError, naming it, for a frame the tree cannot reach)."""
+    x, y, yaw = tree.to_world(odom.header.frame_id, _floor(odom.pose.pose))
+    return CameraPose(stamp_ns=stamp_ns(odom.header.stamp), x=x, y=y, yaw=yaw)
+
+
+def pose_to_mission_goal(pose: Any, tree: Tree) -> MissionGoal:
+    """A PoseStamped goal (its position, moved into the world from its header's frame) as a
+    one-waypoint mission; UnknownFrameError for a frame the tree cannot reach."""
+    x, y, _ = tree.to_world(pose.header.frame_id, _floor(pose.pose))
+    return MissionGoal(stamp_ns=stamp_ns(pose.header.stamp), waypoints=[(x, y)])
 
 
 def compressed_image(jpeg: bytes, stamp_ns_: int, frame_id: str) -> Any:
@@ -137,3 +154,11 @@ def camera_info(k: CameraIntrinsics, stamp_ns_: int, frame_id: str) -> Any:
         k=K.reshape(9), r=np.eye(3).reshape(9), p=P.reshape(12), binning_x=0, binning_y=0,
         roi=_t("sensor_msgs/msg/RegionOfInterest")(x_offset=0, y_offset=0, height=0, width=0,
                                                    do_rectify=False))
+
+
+def log_message(record: logging.LogRecord) -> Any:
+    """rcl_interfaces/Log of a Python log record (its levels are ROS's: 10 DEBUG ... 50 FATAL)."""
+    return _t(LOG)(stamp=stamp(int(record.created * 1e9)),
+                   level=min(50, max(10, record.levelno // 10 * 10)), name=record.name,
+                   msg=record.getMessage(), file=record.pathname, function=record.funcName,
+                   line=record.lineno)

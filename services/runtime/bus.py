@@ -26,6 +26,7 @@ from typing import Any, TypeVar
 
 import numpy as np
 import zenoh
+import zenoh.ext
 from pydantic import ValidationError
 
 from schemas import FrameEncoding, FrameHeader, Keys, Message, describe_validation_error
@@ -118,11 +119,25 @@ class Bus:
         token = self.session.liveliness().declare_token(key_expr)
         self._closers.append(token.undeclare)
 
-    def raw_publisher(self, key_expr: str) -> Any:
-        """A Zenoh publisher on any key (for foreign wire formats), undeclared with the bus."""
-        pub = self.session.declare_publisher(key_expr)
+    def raw_publisher(self, key_expr: str, *, cache: int = 0) -> Any:
+        """A Zenoh publisher on any key (for foreign wire formats), undeclared with the bus;
+        ``cache`` > 0: a zenoh-ext advanced publisher keeping that many samples for late
+        subscribers, detectable by them, with a sporadic heartbeat (0.5 s) for their
+        recovery of missed samples (rmw_zenoh's reliable transient-local publisher)."""
+        pub = (zenoh.ext.declare_advanced_publisher(
+            self.session, key_expr, cache=zenoh.ext.CacheConfig(max_samples=cache),
+            publisher_detection=True,
+            sample_miss_detection=zenoh.ext.MissDetectionConfig(heartbeat=None,
+                                                                sporadic_heartbeat=0.5))
+            if cache > 0 else self.session.declare_publisher(key_expr))
         self._closers.append(pub.undeclare)
         return pub
+
+    def raw_queryable(self, key_expr: str, on_query: Callable[[zenoh.Query], None]) -> None:
+        """A complete Zenoh queryable on any key (for foreign wire formats), undeclared with
+        the bus; ``on_query`` runs on Zenoh's thread."""
+        q = self.session.declare_queryable(key_expr, on_query, complete=True)
+        self._closers.append(q.undeclare)
 
     def declare_alive(self) -> None:
         """Declare the liveliness token ``alive/<service>`` until this bus closes."""

@@ -19,11 +19,16 @@ class ZenohSettings(BaseModel):
     """The ``[zenoh]`` table of a deployment file."""
 
     model_config = ConfigDict(extra="forbid")
-    mode: str = Field(default="peer", pattern="^(peer|client|router)$")
-    connect: list[str] = Field(default_factory=list)
-    listen: list[str] = Field(default_factory=list)
-    multicast_scouting: bool = True
-    config_file: Path | None = None
+    mode: str = Field(default="peer", pattern="^(peer|client|router)$",
+                      description="the Zenoh session's role: peer, client or router")
+    connect: list[str] = Field(default_factory=list,
+                               description="endpoints to connect to, e.g. tcp/192.168.1.10:7447")
+    listen: list[str] = Field(default_factory=list,
+                              description="endpoints to listen on, e.g. tcp/0.0.0.0:7447")
+    multicast_scouting: bool = Field(default=True,
+                                     description="find peers by UDP multicast on the LAN")
+    config_file: Path | None = Field(default=None, description=(
+        "a native Zenoh config (JSON5: TLS, users, access control) read first"))
     lease_s: float | None = Field(default=None, ge=0.1, le=3600.0, description=(
         "the session's lease announced to its peers: a link silent this long is closed and "
         "the liveliness tokens behind it go away (Zenoh's default: 10 s). Short (1-2 s) on the "
@@ -35,6 +40,9 @@ class ZenohSettings(BaseModel):
     local_delivery: bool = Field(default=True, description=(
         "services sharing a session take each other's messages in-process (still published "
         "to Zenoh for everyone else)"))
+    timestamping: bool = Field(default=True, description=(
+        "stamp samples with the session's clock, as rmw_zenoh does: zenoh-ext's cached "
+        "(transient-local) publishers need it, e.g. the ROS 2 bridge's /tf_static"))
 
 
 class Limits(BaseModel):
@@ -58,6 +66,7 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
         conf = zenoh.Config()
     conf.insert_json5("mode", json.dumps(settings.mode))
     conf.insert_json5("scouting/multicast/enabled", json.dumps(settings.multicast_scouting))
+    conf.insert_json5("timestamping/enabled", json.dumps(settings.timestamping))
     if settings.connect:
         conf.insert_json5("connect/endpoints", json.dumps(settings.connect))
     if settings.listen:

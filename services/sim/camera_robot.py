@@ -13,17 +13,19 @@ from services.core.world import World
 
 class CameraRobotParams(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
-    max_speed_mps: float = Field(default=0.25, gt=0.0)
-    max_accel_mps2: float = Field(default=0.5, gt=0.0)
-    max_yaw_rate_radps: float = Field(default=1.5, gt=0.0)
-    radius_m: float = Field(default=0.08, gt=0.0)
-    position_tolerance_m: float = Field(default=0.005, gt=0.0)
+    max_speed_mps: float = Field(default=0.25, gt=0.0, description="top speed")
+    max_accel_mps2: float = Field(default=0.5, gt=0.0, description="acceleration limit")
+    max_yaw_rate_radps: float = Field(default=1.5, gt=0.0, description="turn rate limit")
+    radius_m: float = Field(default=0.08, gt=0.0, description="its disc, for collisions")
+    position_tolerance_m: float = Field(default=0.005, gt=0.0,
+                                        description="a goal this near is reached")
     # the pose its locating system reports (the paper's camera robot has one): a constant
     # bias and white noise (estimates of a small robot's), at its own rate, late
     odom_bias: tuple[float, float, float] = Field(default=(0.003, -0.002, 0.005), description=(
         "constant error of the reported pose: x m, y m, yaw rad"))
     odom_noise_m: float = Field(default=0.001, ge=0.0, description="1-sigma white noise")
-    odom_noise_rad: float = Field(default=0.002, ge=0.0)
+    odom_noise_rad: float = Field(default=0.002, ge=0.0,
+                                  description="1-sigma white noise on the yaw")
     odom_hz: float = Field(default=20.0, gt=0.0, description="its own rate, not the frames'")
     odom_latency_s: float = Field(default=0.02, ge=0.0,
                                   description="published this long after its stamp")

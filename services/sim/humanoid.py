@@ -37,7 +37,7 @@ class HumanoidParams(BaseModel):
     back_step_length_m: float = Field(default=0.03, ge=0.0, description="backward stride")
     step_period_s: float = Field(default=0.6, gt=0.0, description="one walking step")
     turn_step_deg: float = Field(default=12.0, ge=0.0, description="one turning step")
-    turn_period_s: float = Field(default=0.4, gt=0.0)
+    turn_period_s: float = Field(default=0.4, gt=0.0, description="one turning step")
     reaction_delay_s: float = Field(default=0.15, ge=0.0, description="IR to first motion")
     slip_fraction: float = Field(default=0.08, ge=0.0, description="1-sigma stride noise")
     heading_drift_deg: float = Field(default=0.8, ge=0.0,
@@ -48,7 +48,7 @@ class HumanoidParams(BaseModel):
         "the body origin's sideways shift in a step (the toy mostly rocks about its feet)"))
     sway_rad: float = Field(default=0.02, ge=0.0, description=(
         "the torso's roll in a step: the marker, 20 cm up, moves 4 mm sideways"))
-    radius_m: float = Field(default=0.09, gt=0.0)
+    radius_m: float = Field(default=0.09, gt=0.0, description="its disc, for collisions")
 
 
 @dataclass

@@ -35,19 +35,25 @@ from services.sim.webcam import WebcamParams
 
 
 class Settings(ServiceSettings):
-    fps: float = Field(default=30.0, gt=0.0, le=1000.0)
-    seed: int = 0
+    fps: float = Field(default=30.0, gt=0.0, le=1000.0, description="frames per second")
+    seed: int = Field(default=0, description="seed of the scene, the gait and the noise")
     intrinsics: RelPath | None = Field(default=None, description="TOML; default paper camera")
-    humanoid_start: tuple[float, float, float] = (0.29, 0.0, 0.0)
-    camera_start: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    humanoid: HumanoidParams = Field(default_factory=HumanoidParams)
-    camera_robot: CameraRobotParams = Field(default_factory=CameraRobotParams)
-    noise_sigma: float = Field(default=2.0, ge=0.0)
-    brightness: float = Field(default=1.0, gt=0.0)
+    humanoid_start: tuple[float, float, float] = Field(
+        default=(0.29, 0.0, 0.0), description="x m, y m, yaw rad in the world")
+    camera_start: tuple[float, float, float] = Field(
+        default=(0.0, 0.0, 0.0), description="the camera robot: x m, y m, yaw rad")
+    humanoid: HumanoidParams = Field(default_factory=HumanoidParams,
+                                     description="the simulated Robosapien's gait")
+    camera_robot: CameraRobotParams = Field(
+        default_factory=CameraRobotParams, description="the camera robot and its odometry")
+    noise_sigma: float = Field(default=2.0, ge=0.0,
+                               description="ideal renders: Gaussian noise, grey levels")
+    brightness: float = Field(default=1.0, gt=0.0, description="scene light, a gain")
     brightness_wave: float = Field(default=0.1, ge=0.0, le=0.5,
                                    description="slow lighting change, fraction")
-    motion_blur_px: float = Field(default=0.0, ge=0.0)
-    clutter: bool = True
+    motion_blur_px: float = Field(default=0.0, ge=0.0, description="motion blur length")
+    clutter: bool = Field(default=True,
+                          description="textured background and coloured distractors")
     jpeg_quality: int | None = Field(default=None, ge=10, le=100,
                                      description="transport encoding of camera/frame")
     camera: WebcamParams = Field(default_factory=WebcamParams,

@@ -29,19 +29,22 @@ class WebcamParams(BaseModel):
     area-exact output, as before the webcam existed)."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
-    ideal: bool = False
+    ideal: bool = Field(default=False, description=(
+        "ideal renders instead (8-bit sRGB, Gaussian noise): none of the below"))
     blur_sigma_px: float = Field(default=0.6, ge=0.0, le=5.0, description="optics PSF, px")
     exposure: float = Field(default=0.8, gt=0.0, le=16.0,
                             description="gain on scene light (0.8: white below clipping)")
-    bayer: bool = True
-    demosaic: Literal["bilinear", "edge_aware"] = "bilinear"
+    bayer: bool = Field(default=True, description="an RGGB mosaic, demosaiced by OpenCV")
+    demosaic: Literal["bilinear", "edge_aware"] = Field(
+        default="bilinear", description="OpenCV's demosaicing method")
     full_well_e: float = Field(default=4000.0, gt=0.0,
                                description="electrons at full scale (shot noise); 0 noise off")
-    shot_noise: bool = True
+    shot_noise: bool = Field(default=True, description="photon (Poisson) noise")
     read_noise_e: float = Field(default=6.0, ge=0.0, description="read noise, electrons RMS")
     white_balance: tuple[float, float, float] = Field(
         default=(1.0, 1.0, 1.0), description="gains on R, G, B after the sensor (1 = balanced)")
-    transfer: Literal["srgb", "gamma", "linear"] = "srgb"
+    transfer: Literal["srgb", "gamma", "linear"] = Field(
+        default="srgb", description="the curve from linear light to 8-bit values")
     gamma: float = Field(default=2.2, gt=0.5, le=4.0, description="used when transfer = gamma")
     jpeg_quality: int = Field(default=90, ge=0, le=100, description="0: no JPEG")
     vignetting: float = Field(default=0.0, ge=0.0, le=0.9,

@@ -28,7 +28,8 @@ def _zenoh_args(p: argparse.ArgumentParser) -> None:
                    help="Zenoh endpoint to connect to, e.g. tcp/192.168.1.10:7447 (repeatable)")
     p.add_argument("--listen", "-l", action="append", default=[], metavar="EP",
                    help="Zenoh endpoint to listen on (repeatable)")
-    p.add_argument("--mode", choices=["peer", "client"], default="peer")
+    p.add_argument("--mode", choices=["peer", "client"], default="peer",
+                   help="the Zenoh session's role")
     p.add_argument("--namespace", default="shepherd", help="key prefix (default: shepherd)")
 
 
@@ -245,13 +246,20 @@ def cmd_compile(args: argparse.Namespace) -> int:
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="shepherd", description=__doc__)
     parser.add_argument("--version", action="version", version=f"shepherd {_version()}")
-    parser.add_argument("--log-level", default="INFO")
+    parser.add_argument("--log-level", default="INFO",
+                        help="DEBUG, INFO, WARNING or ERROR")
     sub = parser.add_subparsers(dest="cmd", required=True)
 
-    p = sub.add_parser("run", help="run the services a deployment file names")
-    p.add_argument("file", nargs="?", help=f"deployment file (default {DEFAULT_DEPLOYMENT})")
-    p.add_argument("--connect", "-e", action="append", default=[], metavar="EP")
-    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP")
+    p = sub.add_parser("run", help="run the services a deployment file names", description=(
+        "Each service an asyncio task in one process, or each its own process with "
+        "--processes (or process = true in its table); crashed services restart with "
+        "backoff; SIGINT/SIGTERM stop all within 2 s, each sending stop to the humanoid."))
+    p.add_argument("file", nargs="?",
+                   help="deployment file (default: deploy/sim.toml, shipped in the package)")
+    p.add_argument("--connect", "-e", action="append", default=[], metavar="EP",
+                   help="Zenoh endpoint to connect to, instead of the file's (repeatable)")
+    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP",
+                   help="Zenoh endpoint to listen on, instead of the file's (repeatable)")
     p.add_argument("--duration", type=float, help="stop after S seconds")
     p.add_argument("--only", action="append", default=[], metavar="NAME",
                    help="run only this service (repeatable)")
@@ -259,16 +267,22 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--child", action="store_true", help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_run)
 
-    p = sub.add_parser("echo", help="print decoded messages on a key expression")
-    p.add_argument("key_expr", nargs="?", default="shepherd/**")
+    p = sub.add_parser("echo", help="print decoded messages on a key expression", description=(
+        "One readable line per message (frames: seq, size, rate; checked, never decoded); "
+        "control characters from the wire are escaped; --json prints the payloads."))
+    p.add_argument("key_expr", nargs="?", default="shepherd/**",
+                   help="Zenoh key expression, e.g. 'shepherd/humanoid/*'")
     _zenoh_args(p)
     p.add_argument("--count", type=int, help="exit after N messages")
     p.add_argument("--duration", type=float, help="exit after S seconds")
     p.add_argument("--json", action="store_true", help="print the raw JSON")
     p.set_defaults(func=cmd_echo)
 
-    p = sub.add_parser("router", help="run a Zenoh router (no zenohd needed)")
-    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP")
+    p = sub.add_parser("router", help="run a Zenoh router (no zenohd needed)", description=(
+        "A Zenoh router in Python, so hosts can meet without zenohd; with --config it "
+        "listens where the native config says (e.g. TLS) unless --listen is given."))
+    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP",
+                   help="endpoint to listen on (default tcp/0.0.0.0:7447; repeatable)")
     p.add_argument("--config", help="native Zenoh config file (TLS, auth, ACL)")
     p.add_argument("--lease", type=float, metavar="S", help=(
         "the lease (s) announced to the robot's and laptop's sessions: a partitioned link "
@@ -276,10 +290,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=float, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_router)
 
-    p = sub.add_parser("schemas", help="print the JSON Schema of every message")
+    p = sub.add_parser("schemas", help="print the JSON Schema of every message",
+                       description="JSON Schemas of all messages and the key table.")
     p.set_defaults(func=cmd_schemas)
 
-    p = sub.add_parser("compile", help="compile the hot-path kernels now (first run: ~40 s)")
+    p = sub.add_parser("compile", help="compile the hot-path kernels now (first run: ~40 s)",
+                       description="Into their on-disk cache; make runs it at install, and "
+                       "services do it on start when needed.")
     p.set_defaults(func=cmd_compile)
 
     p = sub.add_parser("bench", help="benchmarks beside their references")
@@ -291,7 +308,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("mission", help="send the humanoid somewhere, or stop it")
     msub = p.add_subparsers(dest="mission_cmd", required=True)
     g = msub.add_parser("goto", help="waypoints X Y [X Y ...] in metres, world frame")
-    g.add_argument("coords", nargs="+", type=float)
+    g.add_argument("coords", nargs="+", type=float, metavar="X Y",
+                   help="waypoints, world metres")
     g.add_argument("--tolerance", type=float, default=None,
                    help="goal tolerance l, metres (default: the controller's)")
     _zenoh_args(g)
@@ -301,20 +319,22 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("ir", help="send an IR command or switch the IR backend")
     isub = p.add_subparsers(dest="ir_cmd", required=True)
-    s = isub.add_parser("send")
+    s = isub.add_parser("send", help="send one command to the humanoid (ir/command)")
     s.add_argument("command", choices=["walk_forward", "walk_backward", "turn_left",
-                                       "turn_right", "stop"])
+                                       "turn_right", "stop"], help="the command")
     _zenoh_args(s)
-    b = isub.add_parser("backend")
-    b.add_argument("backend", choices=["serial", "lirc", "sim", "log"])
-    b.add_argument("--port")
-    b.add_argument("--baud", type=int)
-    b.add_argument("--socket")
-    b.add_argument("--option", "-o", action="append", default=[], metavar="KEY=VALUE")
+    b = isub.add_parser("backend", help="switch the IR transmitter's backend (ir/backend)")
+    b.add_argument("backend", choices=["serial", "lirc", "sim", "log"], help="the backend")
+    b.add_argument("--port", help="serial: the device, e.g. /dev/ttyACM0")
+    b.add_argument("--baud", type=int, help="serial: the baud rate (the firmware's: 115200)")
+    b.add_argument("--socket", help="lirc: lircd's socket")
+    b.add_argument("--option", "-o", action="append", default=[], metavar="KEY=VALUE",
+                   help="any other backend option (repeatable)")
     _zenoh_args(b)
     p.set_defaults(func=cmd_ir)
 
-    p = sub.add_parser("record", help="record bus traffic to an MCAP file")
+    p = sub.add_parser("record", help="record bus traffic to an MCAP file", description=(
+        "A JSON Schema per channel; frames lossless, or JPEG with --jpeg."))
     p.add_argument("out", help="OUT.mcap")
     p.add_argument("key_exprs", nargs="*", help="default: <namespace>/**")
     _zenoh_args(p)
@@ -322,10 +342,12 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--jpeg", type=int, metavar="Q", help="store frames as JPEG of quality Q")
     p.set_defaults(func=cmd_record)
 
-    p = sub.add_parser("replay", help="publish an MCAP recording back at its recorded pace")
-    p.add_argument("inp", metavar="IN.mcap")
+    p = sub.add_parser("replay", help="publish an MCAP recording back at its recorded pace",
+                       description="The keys that move a robot (ir/**, mission/**, "
+                       "camera/goal) are left out unless --actuate.")
+    p.add_argument("inp", metavar="IN.mcap", help="a recording made by shepherd record")
     _zenoh_args(p)
-    p.add_argument("--speed", type=float, default=1.0)
+    p.add_argument("--speed", type=float, default=1.0, help="pace: 2 is twice as fast")
     p.add_argument("--only", action="append", default=[], metavar="KEY_EXPR",
                    help="replay only matching keys (repeatable)")
     p.add_argument("--actuate", action="store_true",
@@ -334,11 +356,14 @@ def build_parser() -> argparse.ArgumentParser:
                    help="republish <namespace>/... under NS/... (e.g. to watch a run offline)")
     p.set_defaults(func=cmd_replay)
 
-    p = sub.add_parser("soak", help="run the simulated mission back and forth; watch memory")
-    p.add_argument("file", nargs="?", help=f"deployment (default {DEFAULT_DEPLOYMENT})")
-    p.add_argument("--minutes", type=float, default=30.0)
+    p = sub.add_parser("soak", help="run the simulated mission back and forth; watch memory",
+                       description="For a long time; the memory growth is reported.")
+    p.add_argument("file", nargs="?",
+                   help="deployment file (default: deploy/sim.toml, shipped in the package)")
+    p.add_argument("--minutes", type=float, default=30.0, help="how long")
     p.add_argument("--sample-s", type=float, default=60.0, help="memory sampling period")
-    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP")
+    p.add_argument("--listen", "-l", action="append", default=[], metavar="EP",
+                   help="Zenoh endpoint to listen on, instead of the file's (repeatable)")
     p.set_defaults(func=cmd_soak)
 
     p = sub.add_parser("partition", help=(
@@ -353,7 +378,11 @@ def build_parser() -> argparse.ArgumentParser:
         "0.5-2.5 s to the first fresh message, with the split deployments' lease and Zenoh's"))
     p.set_defaults(func=cmd_partition)
 
-    p = sub.add_parser("experiments", help="the paper's experiments in simulation: report")
+    p = sub.add_parser("experiments", help="the paper's experiments in simulation: report",
+                       description="The paper's Table 3, Fig. 9, Fig. 10 and critical-angle "
+                       "study, each also with our calibration of the camera beside its truth, "
+                       "and the control experiment over 20 seeds on the stepping humanoid: "
+                       "report.md and PNGs (matplotlib with the plot extra).")
     p.add_argument("--out", default="experiments", help="folder for report.md and plots")
     p.add_argument("--quick", action="store_true", help="fewer trials")
     p.set_defaults(func=cmd_experiments)
@@ -364,6 +393,8 @@ def build_parser() -> argparse.ArgumentParser:
     add_calibrate_parser(sub)
     from services.tools.marker import add_marker_parser
     add_marker_parser(sub)
+    from services.tools.docs import add_docs_parser
+    add_docs_parser(sub)
     return parser
 
 

@@ -14,12 +14,13 @@ def add_sim_parser(sub: argparse._SubParsersAction) -> None:  # type: ignore[typ
     p = sub.add_parser("sim", help="simulator tools")
     ssub = p.add_subparsers(dest="sim_cmd", required=True)
     s = ssub.add_parser("snapshot", help="write what the camera sees now to a PNG")
-    s.add_argument("--out", default="frame.png")
+    s.add_argument("--out", default="frame.png", help="the PNG to write")
     s.add_argument("--file", help="deployment file for a fresh scene (default deploy/sim.toml)")
     s.add_argument("--fresh", action="store_true", help="do not look for a running system")
     s.add_argument("--timeout", type=float, default=1.5, help="seconds to wait for a frame")
-    s.add_argument("--connect", "-e", action="append", default=[], metavar="EP")
-    s.add_argument("--namespace", default="shepherd")
+    s.add_argument("--connect", "-e", action="append", default=[], metavar="EP",
+                   help="Zenoh endpoint of the running system (repeatable)")
+    s.add_argument("--namespace", default="shepherd", help="key prefix (default: shepherd)")
     s.set_defaults(func=cmd_snapshot)
 
 

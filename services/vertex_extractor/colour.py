@@ -37,15 +37,17 @@ class ColourModel(BaseModel):
     """
 
     model_config = ConfigDict(extra="forbid", frozen=True)
-    centre: tuple[float, float] = (0.615, 0.02)
-    covariance: tuple[tuple[float, float], tuple[float, float]] = ((0.0064, 0.0),
-                                                                    (0.0, 0.0004))
-    max_distance: float = Field(default=3.0, gt=0.0, le=20.0)
+    centre: tuple[float, float] = Field(default=(0.615, 0.02),
+                                        description="the marker's chromaticity (r, g)")
+    covariance: tuple[tuple[float, float], tuple[float, float]] = Field(
+        default=((0.0064, 0.0), (0.0, 0.0004)), description="its spread in (r, g), 2x2")
+    max_distance: float = Field(default=3.0, gt=0.0, le=20.0,
+                                description="Mahalanobis distance from centre accepted")
     min_sum: float = Field(default=0.05, ge=0.0, le=3.0,
                            description="least R + G + B in linear light (0-3)")
     transfer: Literal["srgb", "gamma", "linear"] = Field(
         default="srgb", description="the camera's transfer curve, undone before the test")
-    gamma: float = Field(default=2.2, gt=0.5, le=4.0)
+    gamma: float = Field(default=2.2, gt=0.5, le=4.0, description="when transfer = gamma")
 
     @model_validator(mode="after")
     def _check(self) -> ColourModel:

@@ -42,7 +42,8 @@ class ExtractorParams(BaseModel):
     their defaults are defined."""
 
     model_config = ConfigDict(extra="forbid", frozen=True)
-    colour: ColourModel = Field(default_factory=ColourModel)
+    colour: ColourModel = Field(default_factory=ColourModel,
+                               description="which pixels are the marker (linear light)")
     dx: int = Field(default=1, ge=1, le=8, description="column step Δx (px)")
     min_len_px: int = Field(default=12, ge=4, description="MIN_LEN: shortest chord used (px)")
     window: int = Field(default=5, ge=2, le=12,
@@ -52,9 +53,11 @@ class ExtractorParams(BaseModel):
                                           "(-1: as many as window)")
     coarse_step: int = Field(default=8, ge=2, le=32, description="grid of the cold search (px)")
     min_area_px: float = Field(default=200.0, gt=0, description="smaller markers are refused")
-    max_residual_px: float = Field(default=0.8, gt=0)
-    min_points_per_edge: int = Field(default=4, ge=2)
-    min_angle_deg: float = Field(default=25.0, gt=0, lt=90)
+    max_residual_px: float = Field(default=0.8, gt=0,
+                                   description="edge points farther off their line: not straight")
+    min_points_per_edge: int = Field(default=4, ge=2, description="fewer: partly hidden")
+    min_angle_deg: float = Field(default=25.0, gt=0, lt=90,
+                                 description="sharper corners are implausible")
     max_candidates: int = Field(default=6, ge=1, le=64,
                                 description="blobs tried, largest first, on a cold search")
     method: Literal["ours", "paper"] = Field(

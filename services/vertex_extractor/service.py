@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 
 import cv2
-from pydantic import model_validator
+from pydantic import Field, model_validator
 
 from schemas import FrameEncoding, MarkerVertices
 from schemas.keys import VERTICES
@@ -25,7 +25,8 @@ class Settings(ServiceSettings, ExtractorParams):
     written by ``shepherd marker learn`` (relative to the deployment file), which replaces
     ``colour``."""
 
-    colour_file: RelPath | None = None
+    colour_file: RelPath | None = Field(default=None, description=(
+        "a colour model from shepherd marker learn; replaces colour"))
 
     @model_validator(mode="after")
     def _load_colour(self) -> Settings:

@@ -34,10 +34,10 @@ from services.viz.negotiate import serve_both_subprotocols
 
 
 class Settings(ServiceSettings):
-    host: str = "127.0.0.1"
-    port: int = Field(default=8765, ge=0, le=65535)
+    host: str = Field(default="127.0.0.1", description="address of the WebSocket server")
+    port: int = Field(default=8765, ge=0, le=65535, description="its port (0: any free)")
     fps: float = Field(default=10.0, gt=0.0, description="image and scene rate")
-    jpeg_quality: int = Field(default=75, ge=10, le=100)
+    jpeg_quality: int = Field(default=75, ge=10, le=100, description="of /camera/image")
 
 
 async def main(ctx: ServiceContext, config: Settings) -> None:

@@ -31,11 +31,13 @@ def run(quick: bool) -> None:
             raw = _raw_hop(a, b, payload, n)
             bridged = asyncio.run(_raw_asyncio_hop(a, b, payload, n))
             ours = asyncio.run(_our_hop(a, b, kind, msg, header, frame_bytes, n))
-            for name, (lat, rate) in (("raw zenoh-python (callback thread)", raw),
-                                      ("raw zenoh -> asyncio (call_soon_threadsafe)", bridged),
-                                      ("shepherd bus (typed, validated, asyncio)", ours)):
+            for name, (lat, got, seconds) in (
+                    ("raw zenoh-python (callback thread)", raw),
+                    ("raw zenoh -> asyncio (call_soon_threadsafe)", bridged),
+                    ("shepherd bus (typed, validated, asyncio)", ours)):
                 rows.append((kind, name, f"{np.median(lat):.0f}", f"{np.percentile(lat, 99):.0f}",
-                             f"{rate:,.0f}", f"{np.median(lat) / np.median(raw[0]):.2f}",
+                             rate_text(got, n, seconds),
+                             f"{np.median(lat) / np.median(raw[0]):.2f}",
                              f"{np.median(lat) / np.median(bridged[0]):.2f}"))
     section("Bus: one hop over loopback TCP (two sessions, one process)",
              ("payload", "layer", "p50 µs", "p99 µs", "msgs/s flat out", "p50 / raw",
@@ -45,7 +47,18 @@ def run(quick: bool) -> None:
              "thread to the event loop, which any asyncio consumer pays (second row).")
 
 
-def _raw_hop(a, b, payload: bytes, n: int) -> tuple[np.ndarray, float]:
+def rate_text(got: int, sent: int, seconds: float) -> str:
+    """The flat-out rate of ``got`` of ``sent`` messages received in ``seconds`` (from the
+    first put to the last arrival), or "—" with the reason when there is no rate to give."""
+    if got == 0:
+        return "— (none arrived)"
+    if seconds <= 0:
+        return "— (no time measured between the first put and the last arrival)"
+    rate = f"{got / seconds:,.0f}"
+    return rate if got == sent else f"{rate} ({got} of {sent} arrived)"
+
+
+def _raw_hop(a, b, payload: bytes, n: int) -> tuple[np.ndarray, int, float]:
     import threading
     got = threading.Event()
     count = [0]
@@ -74,13 +87,13 @@ def _raw_hop(a, b, payload: bytes, n: int) -> tuple[np.ndarray, float]:
     deadline = time.perf_counter() + 2.0
     while count[0] < n and time.perf_counter() < deadline:
         time.sleep(0.001)
-    rate = count[0] / max(last[0] - start, 1e-9)
+    got_n = count[0]
     pub.undeclare()
     sub.undeclare()
-    return lat, rate
+    return lat, got_n, last[0] - start
 
 
-async def _raw_asyncio_hop(a, b, payload: bytes, n: int):
+async def _raw_asyncio_hop(a, b, payload: bytes, n: int) -> tuple[np.ndarray, int, float]:
     loop = asyncio.get_running_loop()
     queue: asyncio.Queue[bytes] = asyncio.Queue()
     sub = b.declare_subscriber(
@@ -107,10 +120,10 @@ async def _raw_asyncio_hop(a, b, payload: bytes, n: int):
         pass
     pub.undeclare()
     sub.undeclare()
-    return lat, got / max(last - t0, 1e-9)
+    return lat, got, last - start
 
 
-async def _our_hop(a, b, kind, msg, header, frame_bytes, n):
+async def _our_hop(a, b, kind, msg, header, frame_bytes, n) -> tuple[np.ndarray, int, float]:
     from schemas import CameraPose, Keys
     from schemas.keys import ODOM
     from services.runtime.bus import Bus
@@ -132,11 +145,11 @@ async def _our_hop(a, b, kind, msg, header, frame_bytes, n):
         send()
         await sub.recv(2.0)
         lat[i] = (time.perf_counter_ns() - t0) / 1e3
-    t0 = time.perf_counter()
+    start = time.perf_counter()
     for _ in range(n):
         send()
     got = 0
-    last = t0
+    last = start
     try:
         while got < n:
             await sub.recv(0.5)
@@ -144,7 +157,6 @@ async def _our_hop(a, b, kind, msg, header, frame_bytes, n):
             last = time.perf_counter()
     except TimeoutError:
         pass
-    rate = got / max(last - t0, 1e-9)
     pub.close()
     sub_bus.close()
-    return lat, rate
+    return lat, got, last - start

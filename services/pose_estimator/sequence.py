@@ -1,0 +1,310 @@
+"""The marker's pose over a sequence of frames (no bus inside): continuity, the two IPPE
+branches' tracks, the choice between them and an honest covariance.
+
+One frame gives the marker's pose and its 6 x 6 covariance (``estimate.estimate_marker_pose``);
+this module adds what the frames before it know:
+
+- **continuity**: the previous pose, when recent, is a weak prior on the rotation; a marker that
+  jumped (lost and found elsewhere) owes nothing to the last frame.
+- **branches**: both IPPE candidates are tracked (``branches.BranchTracker``); the estimator
+  follows the cheaper track, and re-solves on it when the frame alone chose the other.
+- **the crossing**: seen face-on from the marker's height the two candidates are yaw mirrors
+  about the line of sight, and they meet when the heading crosses it. When they are within
+  the noise of each other (``merge_sigmas`` heading sigmas) the frame's pose is their midpoint
+  (no branch to swap), its heading variance grows by the half gap squared, and the tracks
+  lose their identities: which continues which branch after a meeting is unknown, so the
+  evidence gathered before counts for neither. Where a frame cannot decide (the tracks still
+  undecided, or crossing so that their candidates cannot be paired, or the followed branch
+  being no minimum of its own) ``reason`` says "ambiguous" and the heading variance covers
+  the other candidate: never a confident wrong branch.
+- **covariance**: the sandwich covariance of the estimate under a vertex noise model (the
+  extractor's per-vertex covariances when it sends them, else ``noise_sigma_px`` per
+  coordinate plus a common scale error ``scale_sigma_px``), with the upright prior's
+  information, plus the body's rock about its feet (the marker rolls about its normal with
+  the gait, ``rock_sigma_rad``), which moves the floor position the marker implies. Over the
+  webcam sequences its normalised estimation error squared of (x, y, yaw) averages 2.4.
+- **the mount**: ``MountCheck`` estimates from the marker's mean lean how far the real
+  camera mount is off the deployment file's.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from services.core.camera import CameraModel, undistort_px
+from services.pose_estimator.branches import BranchTracker, candidate_cost, rotation_angle
+from services.pose_estimator.estimate import (
+    TILT_HUBER_SIGMAS,
+    TILT_SIGMA_DEG,
+    VERTEX_SIGMA_PX,
+    MarkerPose,
+    estimate_marker_pose,
+)
+from services.pose_estimator.p4p import PoseError, huber_weight, residuals_and_jacobian
+
+#: the marker's roll about its normal with the gait (1-sigma, deg): the simulator's 0.02 rad
+#: rock, sine-shaped, has an RMS of 0.8 deg
+ROCK_SIGMA_DEG = 0.8
+CONTINUITY_WINDOW_S = 0.3
+#: the extractor's vertex error through the simulated webcam, split: independent noise of each
+#: coordinate (0.016-0.036 px RMS) and a common scale (the rhombus 0.04-0.16 px larger or
+#: smaller at each vertex, with and without JPEG); the covariance's model when the extractor
+#: sends no per-vertex covariance
+NOISE_SIGMA_PX = 0.025
+SCALE_SIGMA_PX = 0.1
+
+
+@dataclass(frozen=True)
+class SequenceParams:
+    """Args:
+        continuity_window_s: use the previous pose this recent as a prior.
+        vertex_sigma_px: vertex noise (1-sigma px) when the extractor sends none.
+        tilt_sigma_rad: the upright prior: marker normal level within this.
+        refine: Gauss-Newton after IPPE.
+        rock_sigma_rad: the marker's roll about its normal from the gait (1-sigma).
+        noise_sigma_px, scale_sigma_px: the covariance's vertex noise model (see
+            ``MarkerSequence._covariance``); the estimate itself weighs the vertices with
+            ``vertex_sigma_px``.
+        merge_sigmas: candidates closer in heading than this many heading sigmas are one.
+    """
+
+    continuity_window_s: float = CONTINUITY_WINDOW_S
+    vertex_sigma_px: float = VERTEX_SIGMA_PX
+    tilt_sigma_rad: float = math.radians(TILT_SIGMA_DEG)
+    refine: bool = True
+    rock_sigma_rad: float = math.radians(ROCK_SIGMA_DEG)
+    noise_sigma_px: float = NOISE_SIGMA_PX
+    scale_sigma_px: float = SCALE_SIGMA_PX
+    merge_sigmas: float = 2.0
+
+
+@dataclass(frozen=True)
+class SequenceEstimate:
+    """The marker pose of one frame in its sequence."""
+
+    T_camera_marker: np.ndarray
+    covariance: np.ndarray   # 6 x 6 over (left rotation increment rad, translation m)
+    reprojection_px: float
+    ambiguous: bool
+    reason: str              # "" or why the heading is uncertain
+
+
+def vertex_sigma(vertices_cov_px2: object | None, fallback_px: float) -> float:
+    """One isotropic 1-sigma (px) from the extractor's four 2 x 2 covariances (the RMS of
+    their axes), or ``fallback_px`` when there are none or they are unusable."""
+    if vertices_cov_px2 is None:
+        return fallback_px
+    C = np.asarray(vertices_cov_px2, dtype=np.float64)
+    if C.shape != (4, 2, 2) or not np.isfinite(C).all():
+        return fallback_px
+    var = float(np.mean(np.trace(C, axis1=1, axis2=2))) / 2.0
+    return math.sqrt(var) if var > 1e-6 else fallback_px
+
+
+def _exp_so3(w: np.ndarray) -> np.ndarray:
+    th = float(np.linalg.norm(w))
+    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    if th < 1e-12:
+        return np.eye(3) + K
+    return np.eye(3) + math.sin(th) / th * K + (1 - math.cos(th)) / (th * th) * (K @ K)
+
+
+def heading_about(up: np.ndarray, Ra: np.ndarray, Rb: np.ndarray) -> float:
+    """Signed angle (rad) about ``up`` from Ra's marker normal to Rb's (both projected on the
+    plane normal to ``up``)."""
+    def flat(n: np.ndarray) -> np.ndarray:
+        return n - float(n @ up) * up
+    a, b = flat(Ra[:, 2]), flat(Rb[:, 2])
+    return math.atan2(float(np.cross(a, b) @ up), float(a @ b))
+
+
+class MountCheck:
+    """Is the world's up where the deployment file's mount puts it? Over a sequence.
+
+    The humanoid stands upright, so the marker's normal, from the image alone (the IPPE
+    candidate, no prior), is level on average. With the real mount turned by a small
+    rotation ``d`` (camera frame) from the file's, each frame's ``n . up_file`` is about
+    ``d . (n x up_file)``: a linear least squares over the frames gives ``d``, reported as
+    the camera's pitch (about its x) and roll (about its z) off the file.
+    """
+
+    def __init__(self, up_cam: np.ndarray, min_frames: int = 60, alert_deg: float = 3.0,
+                 max_tilt_deg: float = 30.0) -> None:
+        self.up = np.asarray(up_cam, np.float64)
+        self.min_frames, self.alert_deg = min_frames, alert_deg
+        self.max_tilt = math.sin(math.radians(max_tilt_deg))
+        self.A = np.zeros((3, 3))
+        self.b = np.zeros(3)
+        self.frames = 0
+
+    def add(self, R_image: np.ndarray) -> None:
+        """One frame's marker rotation from the image alone."""
+        n = R_image[:, 2]
+        m = float(n @ self.up)
+        if abs(m) > self.max_tilt:  # not a standing humanoid's marker (or a bad frame)
+            return
+        a = np.cross(n, self.up)
+        self.A += np.outer(a, a)
+        self.b += a * m
+        self.frames += 1
+
+    def offset_deg(self) -> tuple[float, float] | None:
+        """(pitch, roll) of the real mount off the file's, deg (camera x and z), or None
+        before ``min_frames``."""
+        if self.frames < self.min_frames:
+            return None
+        # a ridge: a direction the views hardly see (the roll, from a marker always seen
+        # face-on) stays near zero instead of following the noise
+        A = self.A + (np.outer(self.up, self.up) + 0.02 * np.eye(3)) * self.frames
+        d = np.linalg.solve(A, self.b)
+        return math.degrees(float(d[0])), math.degrees(float(d[2]))
+
+    def message(self) -> str:
+        """A warning when the mount looks more than ``alert_deg`` off, else ""."""
+        off = self.offset_deg()
+        if off is None or math.hypot(*off) < self.alert_deg:
+            return ""
+        return (f"the marker leans {math.hypot(*off):.1f}° on average over {self.frames} "
+                f"frames: the camera mount looks pitched {off[0]:+.1f}° and rolled "
+                f"{off[1]:+.1f}° off the deployment file's (check camera_pitch_rad)")
+
+
+class MarkerSequence:
+    """Feed it each frame's vertices in order; it returns the marker pose of the frame."""
+
+    def __init__(self, camera: CameraModel, points: np.ndarray, up_cam: np.ndarray | None,
+                 params: SequenceParams | None = None) -> None:
+        self.camera = camera
+        self.points = points
+        self.up_cam = up_cam
+        self.params = params or SequenceParams()
+        self.branches = BranchTracker()
+        self.previous: tuple[int, np.ndarray] | None = None  # (stamp_ns, R) of the last pose
+        self.mount = MountCheck(up_cam) if up_cam is not None else None
+
+    def reset(self) -> None:
+        self.branches.reset()
+        self.previous = None
+
+    def update(self, stamp_ns: int, vertices_px: np.ndarray,
+               vertices_cov_px2: object | None = None) -> SequenceEstimate:
+        """Raises PoseError when the vertices give no pose."""
+        p = self.params
+        recent = self.previous is not None and \
+            abs(stamp_ns - self.previous[0]) < p.continuity_window_s * 1e9
+        if not recent:
+            self.branches.reset()
+        v = np.asarray(vertices_px, dtype=np.float64)
+        # the vertices' weight: the extractor's noise when larger than the setting, never
+        # smaller (its covariance leaves out errors common to the vertices, such as the
+        # scale, and a smaller weight would weaken the priors against them)
+        sigma_px = max(vertex_sigma(vertices_cov_px2, p.vertex_sigma_px), p.vertex_sigma_px)
+
+        def solve(previous_R: np.ndarray | None, sigma_deg: float = 10.0) -> MarkerPose:
+            return estimate_marker_pose(
+                self.camera, v, self.points, up_cam=self.up_cam,
+                refine_steps=5 if p.refine else 0, sigma_px=sigma_px,
+                tilt_sigma_rad=p.tilt_sigma_rad, previous_R=previous_R,
+                continuity_sigma_rad=math.radians(sigma_deg))
+        mp = solve(self.previous[1] if recent and self.previous else None)
+        last = self.branches.position
+        if recent and last is not None and float(np.linalg.norm(
+                mp.T_camera_marker[:3, 3] - last)) > self.branches.max_move_m:
+            mp = solve(None)  # the marker jumped: an unrelated view owes nothing to the last
+        follow, ambiguous = self.branches.update([
+            (c[:3, :3], candidate_cost(self.camera, c, self.points, v, sigma_px, self.up_cam,
+                                       p.tilt_sigma_rad))
+            for c in mp.candidates], mp.T_camera_marker[:3, 3])
+        if follow is not None and rotation_angle(follow, mp.T_camera_marker[:3, :3]) > \
+                math.radians(10.0):
+            mp = solve(follow, 3.0)  # the frame alone chose the other branch: follow the track
+        T = mp.T_camera_marker.copy()
+        if self.mount is not None:
+            self.mount.add(min(mp.candidates, key=lambda c: rotation_angle(
+                c[:3, :3], T[:3, :3]))[:3, :3])
+        cov = self._covariance(T, v, sigma_px, vertices_cov_px2)
+        reason = ""
+        pair = self._pair(T[:3, :3], mp.candidates)
+        if pair is not None and self.up_cam is not None:
+            up = self.up_cam
+            near, far = pair
+            off = heading_about(up, near, T[:3, :3])  # from the nearer candidate to ours
+            gap = heading_about(up, near, far)        # from it to the mirror, rad
+            sigma_h = math.sqrt(max(float(up @ cov[:3, :3] @ up), 0.0))
+            stuck = abs(off) > max(3.0 * sigma_h, math.radians(2.0))
+            if abs(gap) < p.merge_sigmas * sigma_h or stuck:
+                # within the noise (or the track's branch is no minimum of its own): the
+                # candidates' midpoint, the half gap added to the variance
+                T[:3, :3] = _exp_so3((0.5 * gap - off) * up) @ T[:3, :3]
+                cov[:3, :3] += (0.5 * gap) ** 2 * np.outer(up, up)
+                if abs(gap) < p.merge_sigmas * sigma_h:
+                    self.branches.crossed()
+                if stuck and abs(gap) >= p.merge_sigmas * sigma_h:
+                    reason = ("ambiguous: the frame and the track disagree on the branch; "
+                              f"midpoint of the two ({math.degrees(abs(gap)):.1f}° apart)")
+            elif ambiguous or (self.branches.skipped and abs(gap) > math.radians(4.0)):
+                cov[:3, :3] += gap ** 2 * np.outer(up, up)
+                why = ("the mirror pose fits nearly as well" if ambiguous else
+                       "the branches cross: which is which is unknown this frame")
+                reason = (f"ambiguous: {why} ({math.degrees(abs(gap)):.1f}° away); "
+                          "heading sigma widened")
+        self.previous = (stamp_ns, T[:3, :3])
+        return SequenceEstimate(T, cov, mp.reprojection_px, bool(reason), reason)
+
+    def _covariance(self, T: np.ndarray, v: np.ndarray, weight_px: float,
+                    vertices_cov_px2: object | None) -> np.ndarray:
+        """6 x 6 covariance of the estimate (a weighted least squares with weight
+        ``weight_px`` plus the upright prior) under the vertex noise model: the extractor's
+        per-vertex covariances, else ``noise_sigma_px`` on each coordinate, plus a common
+        scale error of ``scale_sigma_px`` (the rhombus seen a little larger or smaller, as
+        blur, gamma and JPEG make it), plus the gait's rock about the marker normal. The
+        sandwich A^-1 B A^-1 of the Gauss-Newton normal equations."""
+        p = self.params
+        f = 0.5 * (self.camera.K[0, 0] + self.camera.K[1, 1])
+        q = undistort_px(self.camera, v)
+        R, t = np.ascontiguousarray(T[:3, :3]), np.ascontiguousarray(T[:3, 3])
+        try:
+            _, J = residuals_and_jacobian(R, t, np.ascontiguousarray(self.points, np.float64),
+                                          q)
+        except ZeroDivisionError:
+            raise PoseError("numerically degenerate view (a vertex at the camera's depth "
+                            "0)") from None
+        J = J * f  # px per unit of (w, t)
+        C = np.asarray(vertices_cov_px2, np.float64) if vertices_cov_px2 is not None else None
+        if C is None or C.shape != (4, 2, 2) or not np.isfinite(C).all():
+            C = np.tile(np.eye(2) * p.noise_sigma_px ** 2, (4, 1, 1))
+        S = np.zeros((8, 8))
+        for i in range(4):
+            S[2 * i:2 * i + 2, 2 * i:2 * i + 2] = C[i]
+        d = (v - v.mean(axis=0)).ravel()
+        d /= max(float(np.linalg.norm(d)), 1e-12) / 2.0  # about 1 px per vertex
+        S += p.scale_sigma_px ** 2 * np.outer(d, d)
+        A = J.T @ J / weight_px ** 2
+        B = J.T @ S @ J / weight_px ** 4
+        if self.up_cam is not None:
+            g = np.zeros(6)
+            g[:3] = np.cross(R[:, 2], self.up_cam) / p.tilt_sigma_rad  # d(n . up)/dw
+            g *= math.sqrt(huber_weight(float(R[:, 2] @ self.up_cam),
+                                        math.sin(TILT_HUBER_SIGMAS * p.tilt_sigma_rad)))
+            A += np.outer(g, g)
+            B += np.outer(g, g)
+        try:
+            A_inv = np.linalg.inv(A)
+        except np.linalg.LinAlgError:
+            A_inv = np.linalg.pinv(A)
+        cov = A_inv @ B @ A_inv
+        n = R[:, 2]
+        cov[:3, :3] += p.rock_sigma_rad ** 2 * np.outer(n, n)
+        return 0.5 * (cov + cov.T)
+
+    @staticmethod
+    def _pair(R: np.ndarray, candidates: tuple[np.ndarray, ...]
+              ) -> tuple[np.ndarray, np.ndarray] | None:
+        """(the candidate nearer R, the other), or None with a single candidate."""
+        if len(candidates) < 2:
+            return None
+        a, b = candidates[0][:3, :3], candidates[1][:3, :3]
+        return (a, b) if rotation_angle(a, R) <= rotation_angle(b, R) else (b, a)
