@@ -229,6 +229,15 @@ class IrCommand(Message):
     stamp_ns: int = Field(default_factory=now_ns, ge=0)
     command: Command
     code: int = Field(default=-1, ge=-1, le=0xFF)
+    session: str | None = Field(default=None, max_length=64, description=(
+        "the sending controller's run (random, new at each start); the IR transmitter orders "
+        "and ages a session's commands by seq and sent_mono_ns. Null: a one-shot command "
+        "(e.g. `shepherd ir send`), relayed as it comes"))
+    seq: int | None = Field(default=None, ge=0, description="increases by one per command "
+                            "of the session")
+    sent_mono_ns: int | None = Field(default=None, ge=0, description=(
+        "the sender's monotonic clock when sent (ns): only differences within one session "
+        "mean anything, so no clock synchronisation between hosts is needed"))
 
     @model_validator(mode="after")
     def _code_follows_command(self) -> IrCommand:
@@ -262,6 +271,10 @@ class IrBackendStatus(Message):
     unacked: int = Field(default=0, description="codes the IR firmware did not acknowledge")
     firmware_watchdog_stops: int = Field(default=0, description=(
         "stops the IR firmware's own watchdog sent (the host went quiet)"))
+    not_fresh: dict[str, int] = Field(default_factory=dict, description=(
+        "the controller's commands not sent, by why: old (not newer than one already seen), "
+        "rearming (motion after a gap, before the cadence came back), stale (arrived late), "
+        "superseded (a newer one arrived with it)"))
     connected: bool = True
     last_error: str = ""
 

@@ -6,6 +6,11 @@ backend after the command in flight; a bad request is rejected with its reason a
 backend stays. A query on ``ir/backend`` returns the backend and its counters. While a serial
 device is unplugged, commands are reported as failed; after it comes back the latest command
 is sent only if it is younger than ``fresh_s``. ``stop`` is sent at shutdown.
+
+The controller's commands (those with a session) go through the freshness gate
+(:mod:`services.ir_transmitter.freshness`): what arrives together collapses to its newest, and
+after a network cut nothing decided before it moves the humanoid; a motion command the gate
+drops while the humanoid moves sends ``stop``. The dead-man counts fresh commands only.
 """
 
 from __future__ import annotations
@@ -20,6 +25,7 @@ from pydantic import BaseModel, ConfigDict, Field
 from schemas import Command, IrBackendRequest, IrBackendStatus, IrCommand
 from schemas.keys import IR_BACKEND, IR_COMMAND, SIM_IR
 from services.ir_transmitter.backends import BackendError, IrBackend, make_backend
+from services.ir_transmitter.freshness import OLD, FreshnessGate, FreshnessParams, Verdict
 from services.runtime.config import ServiceSettings
 from services.runtime.context import ServiceContext
 
@@ -34,7 +40,10 @@ class BackendChoice(BaseModel):
     options: dict[str, Any] = Field(default_factory=dict)
 
 
-class Settings(ServiceSettings):
+class Settings(ServiceSettings, FreshnessParams):
+    """The freshness gate's parameters (``FreshnessParams``, the dead-man's among them) and
+    the transmitter's own."""
+
     backend: BackendName = Field(default="log", description=(
         "serial (the Arduino), lirc, sim (the simulator) or log (only logs)"))
     options: dict[str, Any] = Field(default_factory=dict, description=(
@@ -49,9 +58,6 @@ class Settings(ServiceSettings):
                            description="after a lost device returns, resend only this young")
     heartbeat_s: float = Field(default=0.15, gt=0.0, le=0.3,
                                description="heartbeat to the firmware's 0.4 s watchdog")
-    deadman_s: float = Field(default=0.5, ge=0.0, description=(
-        "dead-man: send stop when the humanoid moves and no command (the controller's "
-        "keepalive included) came for this long; 0 turns it off"))
     controller: str = Field(default="mission_controller", description=(
         "the service whose liveliness token going away sends stop at once ('' for none)"))
 
@@ -62,6 +68,8 @@ class Transmitter:
     def __init__(self, backend: IrBackend, config: Settings) -> None:
         self.backend, self.config = backend, config
         self.sent = self.failed = self.coalesced = self.deadman_stops = 0
+        self.gate = FreshnessGate(config.part(FreshnessParams))
+        self.superseded = 0   # passed the gate, but a newer one came with it
         self.last_error = ""
         self._last: tuple[Command, float] | None = None
         self.pending: IrCommand | None = None  # latest command that failed to go out
@@ -70,6 +78,7 @@ class Transmitter:
         return IrBackendStatus(backend=self.backend.name, options=self.backend.options,
                                sent=self.sent, failed=self.failed, coalesced=self.coalesced,
                                deadman_stops=self.deadman_stops,
+                               not_fresh={**self.gate.dropped, "superseded": self.superseded},
                                unacked=getattr(self.backend, "unacked", 0),
                                firmware_watchdog_stops=getattr(self.backend, "watchdog_stops", 0),
                                connected=self.backend.connected, last_error=self.last_error)
@@ -127,6 +136,7 @@ class Transmitter:
     async def deadman_stop(self, why: str) -> None:
         """Stop the humanoid because its controller is gone or silent."""
         self.deadman_stops += 1
+        self.gate.disarm()
         logging.getLogger("shepherd.ir_transmitter").warning("dead-man: %s; sending stop", why)
         if not await self.send(IrCommand(command=Command.STOP)):
             logging.getLogger("shepherd.ir_transmitter").error(
@@ -148,6 +158,38 @@ def allowed_or_raise(config: Settings, request: IrBackendRequest) -> None:
                          f"deployment file (allowed: {listed})")
 
 
+async def relay(tx: Transmitter, batch: list[tuple[int, IrCommand]],
+                log: logging.Logger) -> bool:
+    """Send what arrived together (``(arrival monotonic ns, command)``, oldest first):
+    one-shots in order, the controller's commands collapsed to the newest, if fresh. True
+    if a fresh command came (it feeds the dead-man)."""
+    fresh = False
+    newest: tuple[IrCommand, Verdict] | None = None
+    passed = 0
+    for arrival_ns, cmd in batch:
+        if cmd.session is None:
+            fresh = True
+            if not await tx.send(cmd):
+                log.warning("IR %s not sent: %s", cmd.command.value, tx.last_error)
+            continue
+        verdict = tx.gate.judge(cmd, arrival_ns / 1e9)
+        passed += verdict.send
+        if newest is None or verdict.reason != OLD:  # the newest seen so far
+            newest = (cmd, verdict)
+    if newest is None:
+        return fresh
+    cmd, (ok, why) = newest[0], (newest[1].send, newest[1].reason)
+    tx.superseded += passed - ok
+    if ok:
+        if not await tx.send(cmd):
+            log.warning("IR %s not sent: %s", cmd.command.value, tx.last_error)
+        return True
+    log.info("IR %s #%s not sent: %s", cmd.command.value, cmd.seq, why)
+    if tx.moving:
+        await tx.deadman_stop(f"{cmd.command.value} #{cmd.seq} not fresh ({why})")
+    return fresh
+
+
 async def main(ctx: ServiceContext, config: Settings) -> None:
     bus, log = ctx.bus, ctx.log
 
@@ -156,7 +198,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
 
     tx = Transmitter(make_backend(config.backend, dict(config.options), publish_sim), config)
     log.info("IR backend %s %s", tx.backend.name, tx.backend.options)
-    commands = bus.subscribe(IR_COMMAND, IrCommand, latest=False, queue=64)
+    commands = bus.subscribe_stamped(IR_COMMAND, IrCommand, queue=64, clock=time.monotonic_ns)
     requests = bus.subscribe(IR_BACKEND, IrBackendRequest, latest=False, queue=8)
     bus.declare_queryable(IR_BACKEND, tx.status)
     tokens = bus.subscribe_liveliness(bus.keys.alive(config.controller)) \
@@ -165,17 +207,25 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
     last_beat = last_command = time.monotonic()
     try:
         while True:
-            cmd_task: asyncio.Future[IrCommand] = asyncio.ensure_future(commands.recv())
+            cmd_task: asyncio.Future[tuple[int, IrCommand]] = asyncio.ensure_future(
+                commands.recv())
             req_task: asyncio.Future[IrBackendRequest] = asyncio.ensure_future(requests.recv())
             pending = {cmd_task, req_task}
-            done, _ = await asyncio.wait(pending, timeout=config.heartbeat_s,
+            wake_s = config.heartbeat_s  # sooner when the dead-man is due
+            if config.deadman_s and tx.moving:
+                wake_s = min(wake_s, max(0.01, config.deadman_s
+                                         - (time.monotonic() - last_command) + 0.005))
+            done, _ = await asyncio.wait(pending, timeout=wake_s,
                                          return_when=asyncio.FIRST_COMPLETED)
             for task in (cmd_task, req_task):
                 if task not in done:
                     task.cancel()
             while tokens is not None and (token := tokens.get_nowait()) is not None:
-                if not token[1] and tx.moving:
-                    await tx.deadman_stop(f"{config.controller}'s liveliness token went away")
+                if not token[1]:
+                    tx.gate.disarm()
+                    if tx.moving:
+                        await tx.deadman_stop(
+                            f"{config.controller}'s liveliness token went away")
             # a cancelled recv() may have taken nothing; results of finished ones are used
             if req_task in done:
                 req = req_task.result()
@@ -189,10 +239,8 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                     log.info("IR backend %s -> %s %s", tx.backend.name, new.name, new.options)
                     tx.swap(new)
             if cmd_task in done:
-                cmd = cmd_task.result()
-                last_command = time.monotonic()
-                if not await tx.send(cmd):
-                    log.warning("IR %s not sent: %s", cmd.command.value, tx.last_error)
+                if await relay(tx, [cmd_task.result(), *iter(commands.get_nowait, None)], log):
+                    last_command = time.monotonic()
             else:
                 await tx.retry_pending()
             silent_s = time.monotonic() - last_command

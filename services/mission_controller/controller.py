@@ -98,13 +98,18 @@ class HeuristicController:
 
     def decide(self, pose: tuple[float, float, float] | None, pose_age_s: float,
                hold: bool, now_s: float | None = None,
-               heading_sigma_rad: float | None = None) -> Decision:
+               heading_sigma_rad: float | None = None, stale: str = "") -> Decision:
         """One control step. ``pose`` is (x m, y m, yaw rad) in the world, or None;
         ``now_s`` a monotonic time (the simulator's in direct loops); ``heading_sigma_rad``
-        the pose's heading standard deviation, when known."""
+        the pose's heading standard deviation, when known; ``stale`` why the pose must not be
+        steered by although young (e.g. held in a buffer during a network cut)."""
         now = time.monotonic() if now_s is None else now_s
         self._heading_sigma = heading_sigma_rad
-        d = self._decide(pose, pose_age_s, hold, now)
+        if stale and self.index < len(self.waypoints):
+            self.phase = Phase.WAITING_POSE
+            d = Decision(Command.STOP, Phase.WAITING_POSE, self.index, reason=stale)
+        else:
+            d = self._decide(pose, pose_age_s, hold, now)
         self._count_reversal(d.command)
         return d
 

@@ -2,12 +2,16 @@
 
 Subscribes ``humanoid/pose`` (latest), ``mission/goal`` and ``mission/hold``; at ``rate_hz``
 decides a command and publishes it on ``ir/command`` when it changes (and every
-``keepalive_s``); publishes ``mission/state``. Sends ``stop`` at shutdown.
+``keepalive_s``); publishes ``mission/state``. Sends ``stop`` at shutdown. Each command carries
+this run's session id, a sequence number and the monotonic clock, by which the IR transmitter
+judges its freshness (issue 20).
 """
 
 from __future__ import annotations
 
+import itertools
 import math
+import secrets
 import time
 from typing import Literal
 
@@ -16,6 +20,7 @@ from pydantic import Field
 from schemas import Command, Hold, HumanoidPose, IrCommand, MissionGoal, MissionState, Phase
 from schemas.keys import IR_COMMAND, MISSION_GOAL, MISSION_HOLD, MISSION_STATE
 from services.mission_controller.controller import ControlParams, HeuristicController
+from services.mission_controller.pose_freshness import PoseFreshness
 from services.runtime.clock import Ticker, age_s
 from services.runtime.config import ServiceSettings
 from services.runtime.context import ServiceContext
@@ -35,6 +40,10 @@ class Settings(ServiceSettings, ControlParams):
     keepalive_s: float = Field(default=0.2, gt=0.0, description=(
         "repeat the current command this often: the IR transmitter's dead-man (0.5 s) "
         "stops the humanoid when the repeats stop"))
+    pose_rearm_s: float = Field(default=0.3, ge=0.0, description=(
+        "after a gap in the poses (longer than pose_timeout_s), steer again only once they "
+        "have come without a gap this long: what a network cut held back arrives at once, the "
+        "live poses follow it"))
     hold_timeout_s: float = Field(default=2.0, gt=0.0, description="a hold expires unrenewed")
     exit_when_done: bool = Field(default=False, description="stop the deployment when done")
     loop: bool = Field(default=False, description="when done, run the waypoints again in "
@@ -55,10 +64,16 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
     hold = False
     origin: tuple[float, float] | None = None  # where the current leg started (loop)
     ticker = Ticker(1.0 / config.rate_hz)
+    fresh = PoseFreshness(config.pose_timeout_s, config.pose_rearm_s)
+    session, seq = secrets.token_hex(8), itertools.count()
+
+    def stamped(cmd: Command) -> IrCommand:
+        return IrCommand(command=cmd, session=session, seq=next(seq),
+                         sent_mono_ns=time.monotonic_ns())
 
     def send(cmd: Command) -> None:
         nonlocal last_cmd, last_sent
-        bus.put(IR_COMMAND, IrCommand(command=cmd))
+        bus.put(IR_COMMAND, stamped(cmd))
         if cmd is not last_cmd:
             log.info("command %s", cmd.value)
         last_cmd, last_sent = cmd, time.monotonic()
@@ -72,8 +87,9 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                     ctrl.params = ctrl.params.model_copy(
                         update={"goal_tolerance_m": g.tolerance_m})
                 log.info("new mission: %d waypoints", len(g.waypoints))
-            if (p := poses.get_nowait()) is not None and p.x is not None and p.y is not None \
-                    and p.yaw is not None:
+            if (p := poses.get_nowait()) is not None:
+                fresh.arrived(p.stamp_ns, poses.last_received_ns)
+            if p is not None and p.x is not None and p.y is not None and p.yaw is not None:
                 pose = (p.x, p.y, p.yaw)
                 heading_sigma = math.sqrt(max(p.covariance[2][2], 0.0)) \
                     if p.covariance is not None else None
@@ -85,8 +101,9 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                 hold = False
             was_done = ctrl.phase is Phase.DONE
             try:
-                d = ctrl.decide(pose, age_s(poses.last_received_ns), hold, time.monotonic(),
-                                heading_sigma)
+                now_ns = time.time_ns()
+                d = ctrl.decide(pose, fresh.age_s(now_ns), hold, time.monotonic(),
+                                heading_sigma, stale=fresh.why_stale(now_ns))
             except Exception:
                 log.exception("control step failed; stopping the humanoid")
                 send(Command.STOP)
@@ -110,4 +127,4 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                     ctrl.set_waypoints(back)
             await ticker.wait()
     finally:
-        bus.put(IR_COMMAND, IrCommand(command=Command.STOP))
+        bus.put(IR_COMMAND, stamped(Command.STOP))

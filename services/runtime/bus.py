@@ -238,18 +238,20 @@ class Bus:
                                self._typed_local(model, sub.push)))
         return sub
 
-    def subscribe_stamped(self, suffix: str, model: type[M], *, queue: int = 256
+    def subscribe_stamped(self, suffix: str, model: type[M], *, queue: int = 256,
+                          clock: Callable[[], int] = time.time_ns
                           ) -> Subscription[tuple[int, M]]:
-        """Bounded queue of (receive time Unix ns, message): for latency measurements."""
+        """Bounded queue of (receive time ns by ``clock``, Unix time by default, message):
+        for latency measurements and arrival cadences."""
         sub: Subscription[tuple[int, M]] = Subscription(asyncio.get_running_loop(), queue)
 
         def on_sample(sample: zenoh.Sample) -> None:
             msg = self.decode(sample, model)
             if msg is not None:
-                sub.push((time.time_ns(), msg))
+                sub.push((clock(), msg))
 
         sub.bind(self._declare(self.keys.key(suffix), on_sample, self._typed_local(
-            model, lambda msg: sub.push((time.time_ns(), msg)))))
+            model, lambda msg: sub.push((clock(), msg)))))
         return sub
 
     def frame_header(self, sample: zenoh.Sample) -> FrameHeader | None:

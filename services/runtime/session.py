@@ -29,6 +29,14 @@ class ZenohSettings(BaseModel):
                                      description="find peers by UDP multicast on the LAN")
     config_file: Path | None = Field(default=None, description=(
         "a native Zenoh config (JSON5: TLS, users, access control) read first"))
+    lease_s: float | None = Field(default=None, ge=0.1, le=3600.0, description=(
+        "the session's lease announced to its peers: a link silent this long is closed and "
+        "the liveliness tokens behind it go away (Zenoh's default: 10 s). Short (1-2 s) on the "
+        "controller's and the IR transmitter's hosts, so a network partition reaches the "
+        "liveliness stop too; too short a lease on a jittery link closes healthy links "
+        "(notes/issue-20.md)"))
+    keep_alive: int | None = Field(default=None, ge=1, le=100, description=(
+        "keep-alive messages per lease on an otherwise idle link (Zenoh's default: 4)"))
     local_delivery: bool = Field(default=True, description=(
         "services sharing a session take each other's messages in-process (still published "
         "to Zenoh for everyone else)"))
@@ -63,6 +71,10 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
         conf.insert_json5("connect/endpoints", json.dumps(settings.connect))
     if settings.listen:
         conf.insert_json5("listen/endpoints", json.dumps(settings.listen))
+    if settings.lease_s is not None:
+        conf.insert_json5("transport/link/tx/lease", json.dumps(round(1000 * settings.lease_s)))
+    if settings.keep_alive is not None:
+        conf.insert_json5("transport/link/tx/keep_alive", json.dumps(settings.keep_alive))
     return conf
 
 

@@ -86,7 +86,8 @@ def cmd_router(args: argparse.Namespace) -> int:
     # a native config's own listen endpoints (e.g. TLS) hold unless --listen replaces them
     listen = args.listen or ([] if args.config else ["tcp/0.0.0.0:7447"])
     settings = ZenohSettings(mode="router", listen=listen, multicast_scouting=False,
-                             config_file=Path(args.config) if args.config else None)
+                             config_file=Path(args.config) if args.config else None,
+                             lease_s=args.lease)
     try:
         session = zenoh.open(zenoh_config(settings))
     except (zenoh.ZError, FileNotFoundError) as err:
@@ -204,6 +205,33 @@ def cmd_soak(args: argparse.Namespace) -> int:
     return asyncio.run(soak(dep, args.minutes, args.sample_s))
 
 
+def cmd_partition(args: argparse.Namespace) -> int:
+    from services.tools import partition
+    why = partition.unavailable()
+    if why:
+        print(f"shepherd: cannot cut a link here: {why}", file=sys.stderr)
+        return 2
+    out = Path(args.out)
+    if args.stalls:
+        durations = [0.5, 1.0, 1.3, 1.7, 2.5]
+        print("| stall (s) | " + " | ".join(f"{d:.1f}" for d in durations) + " |")
+        print("|---|" + "---|" * len(durations))
+        for lease in (partition.LEASE_S, None):
+            got = partition.stalls(lease, durations, out / f"stalls-{lease or 'default'}")
+            name = f"lease {lease} s" if lease else "Zenoh's default lease"
+            print(f"| {name} | " + " | ".join(f"{g:.2f}" for g in got) + " |", flush=True)
+        return 0
+    reports = []
+    for way in args.ways.split(","):
+        r = partition.run(way, out / way, cut_s=args.cut, flaps=args.flaps)
+        reports.append(r)
+        print(partition.summary([r]).splitlines()[-1], flush=True)
+    table = partition.summary(reports)
+    (out / "report.md").write_text(table + "\n")
+    print(table)
+    return 0 if all(not r.failures() for r in reports) else 1
+
+
 def cmd_experiments(args: argparse.Namespace) -> int:
     from services.tools.experiments import run
     return run(Path(args.out), quick=args.quick)
@@ -256,6 +284,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", "-l", action="append", default=[], metavar="EP",
                    help="endpoint to listen on (default tcp/0.0.0.0:7447; repeatable)")
     p.add_argument("--config", help="native Zenoh config file (TLS, auth, ACL)")
+    p.add_argument("--lease", type=float, metavar="S", help=(
+        "the lease (s) announced to the robot's and laptop's sessions: a partitioned link "
+        "closes after this long (Zenoh's default 10 s; the split deployments use 1.5 s)"))
     p.add_argument("--duration", type=float, help=argparse.SUPPRESS)
     p.set_defaults(func=cmd_router)
 
@@ -334,6 +365,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--listen", "-l", action="append", default=[], metavar="EP",
                    help="Zenoh endpoint to listen on, instead of the file's (repeatable)")
     p.set_defaults(func=cmd_soak)
+
+    p = sub.add_parser("partition", help=(
+        "cut a real link between a simulated robot and laptop (root: network namespaces)"))
+    p.add_argument("--ways", default="down,drop,laptop",
+                   help="how to cut, comma-separated: down, drop, laptop")
+    p.add_argument("--cut", type=float, default=5.0, help="the first cut (s)")
+    p.add_argument("--flaps", type=int, default=10, help="then this many 1 s down / 2 s up")
+    p.add_argument("--out", default="partition", help="folder for logs and report.md")
+    p.add_argument("--stalls", action="store_true", help=(
+        "instead: what a short lease costs, as the time from the end of silent stalls of "
+        "0.5-2.5 s to the first fresh message, with the split deployments' lease and Zenoh's"))
+    p.set_defaults(func=cmd_partition)
 
     p = sub.add_parser("experiments", help="the paper's experiments in simulation: report",
                        description="The paper's Table 3, Fig. 9, Fig. 10 and critical-angle "

@@ -1,0 +1,97 @@
+"""Issue 20, through real networking: a short lease makes a partition drop the liveliness
+token, and a real link between a simulated robot and laptop (two network namespaces and a veth
+pair) cut while the humanoid walks never lets an old command move it."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+import zenoh
+
+from services.runtime.session import ZenohSettings, zenoh_config
+from services.tools import partition
+from tests.conftest import ROOT
+
+_TOKEN_HOLDER = """
+import sys, time, zenoh
+from services.runtime.session import ZenohSettings, zenoh_config
+s = zenoh.open(zenoh_config(ZenohSettings(mode="client", connect=[sys.argv[1]],
+                                          multicast_scouting=False, lease_s=1.5)))
+token = s.liveliness().declare_token("shepherd/alive/holder")
+print("up", flush=True)
+time.sleep(60)
+"""
+
+
+@pytest.mark.slow
+def test_a_silent_host_loses_its_liveliness_token_within_its_lease(router: str):
+    """SIGSTOP: the process's connection stays open but nothing comes from it, as when the
+    Wi-Fi drops. Zenoh's default lease (10 s) would keep the token that long."""
+    holder = subprocess.Popen([sys.executable, "-c", _TOKEN_HOLDER, router],
+                              stdout=subprocess.PIPE, text=True, cwd=ROOT,
+                              env={**os.environ, "PYTHONPATH": str(ROOT)})
+    events: list[tuple[float, bool]] = []
+    s = zenoh.open(zenoh_config(ZenohSettings(mode="peer", connect=[router],
+                                              multicast_scouting=False)))
+    try:
+        assert holder.stdout is not None and holder.stdout.readline().strip() == "up"
+        sub = s.liveliness().declare_subscriber(
+            "shepherd/alive/holder", lambda sample: events.append(
+                (time.monotonic(), sample.kind == zenoh.SampleKind.PUT)), history=True)
+        deadline = time.monotonic() + 5
+        while not events and time.monotonic() < deadline:
+            time.sleep(0.05)
+        assert events and events[0][1], "the token never appeared"
+        os.kill(holder.pid, signal.SIGSTOP)
+        silent = time.monotonic()
+        while len(events) < 2 and time.monotonic() - silent < 8:
+            time.sleep(0.05)
+        sub.undeclare()
+    finally:
+        s.close()
+        holder.kill()
+        holder.communicate(timeout=10)
+    gone = [t - silent for t, up in events if not up]
+    assert gone, "the token stayed"
+    print(f"\nliveliness token gone {1000 * gone[0]:.0f} ms after the host went silent "
+          "(lease 1.5 s)")
+    assert gone[0] < 2.5
+
+
+def test_the_zenoh_table_sets_the_lease_and_keep_alive():
+    conf = zenoh_config(ZenohSettings(lease_s=1.5, keep_alive=4))
+    assert conf.get_json("transport/link/tx/lease") == "1500"
+    assert conf.get_json("transport/link/tx/keep_alive") == "4"
+    from services.runtime.config import load_deployment
+    for name in ("sim-robot", "sim-laptop", "robot", "laptop"):
+        dep = load_deployment(ROOT / "deploy" / f"{name}.toml")
+        assert dep.zenoh.lease_s is not None and dep.zenoh.lease_s <= 2.0, name
+        assert dep.zenoh.mode == "client", name  # through the router only (notes/issue-20.md)
+
+
+WHY_NOT = partition.unavailable()
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(bool(WHY_NOT), reason=f"no network namespaces here: {WHY_NOT}")
+@pytest.mark.parametrize("way", partition.WAYS)
+def test_a_real_link_cut_and_flapped_while_the_humanoid_walks(tmp_path: Path, way: str):
+    """deploy/sim-robot.toml behind `shepherd router` in one namespace, deploy/sim-laptop.toml
+    in another, the mission 1.5 m ahead; the link cut 5 s, then flapped twice (`shepherd
+    partition` runs the issue's ten flaps)."""
+    report = partition.run(way, tmp_path, cut_s=5.0, flaps=2, timeout_s=150)
+    print("\n" + partition.summary([report]))
+    assert report.motion_sent > 10  # the humanoid did walk, between the cuts too
+    assert not report.stale_motion  # no motion command older than 0.5 s reached it
+    assert len(report.stop_after_cut_s) >= 1 and max(report.stop_after_cut_s) < 1.0
+    assert len(report.fresh_pose_after_heal_s) == len(report.cuts)
+    assert max(report.fresh_pose_after_heal_s) < 5.0
+    assert report.completed, (tmp_path / "laptop.log").read_text()[-3000:]
+    assert report.restarts == 0
+    assert not report.moved_late_m, report.moved_late_m
