@@ -48,3 +48,30 @@ def test_typed_round_trip_between_processes(router, make_bus):
 def test_mission_goto_needs_pairs():
     out = run_cli("mission", "goto", "0.6")
     assert out.returncode == 2 and "X Y pairs" in out.stderr
+
+
+@pytest.mark.slow
+def test_ir_send_waits_for_a_transmitter_that_subscribes_late(router, make_bus):
+    bus = make_bus("late")
+
+    async def go():
+        sending = asyncio.create_task(asyncio.to_thread(
+            run_cli, "ir", "send", "turn_right", "--connect", router))
+        await asyncio.sleep(2.5)  # the command line is waiting for a subscriber by now
+        cmds = bus.subscribe(IR_COMMAND, IrCommand, latest=False)
+        out = await sending
+        assert out.returncode == 0, out.stderr
+        assert (await cmds.recv(timeout=5)).command == Command.TURN_RIGHT
+        assert "nothing subscribes" not in out.stderr
+    asyncio.run(go())
+
+
+def test_publish_once_with_no_subscriber_says_so(router, capsys):
+    from services.runtime.session import ZenohSettings
+    from services.tools.echo import publish_once
+    settings = ZenohSettings(mode="peer", connect=[router], multicast_scouting=False)
+    rc = asyncio.run(publish_once(settings, "nobody", IR_COMMAND,
+                                  IrCommand(command=Command.STOP), wait_s=0.3))
+    err = capsys.readouterr().err
+    assert rc == 0
+    assert "nothing subscribes to nobody/ir/command" in err

@@ -154,6 +154,12 @@ class Bus:
             self._closers.append(pub.undeclare)
         return pub
 
+    def has_subscribers(self, suffix: str, encoding: str) -> bool:
+        """Whether any subscriber (in this process or elsewhere) matches ``<namespace>/<suffix>``
+        now, as Zenoh's publisher matching status sees it."""
+        key = self.keys.key(suffix)
+        return bool(self._publisher(key, encoding).matching_status.matching)
+
     def put(self, suffix: str, message: Message) -> None:
         """Publish a message as JSON on ``<namespace>/<suffix>``."""
         key = self.keys.key(suffix)

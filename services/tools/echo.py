@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import sys
 import time
 
 from schemas import Keys, Message
@@ -57,11 +58,20 @@ async def echo(settings: ZenohSettings, namespace: str, key_expr: str, *,
 
 
 async def publish_once(settings: ZenohSettings, namespace: str, suffix: str,
-                       message: Message, settle_s: float = 0.5) -> int:
-    """Publish one message (after giving discovery ``settle_s`` to find subscribers)."""
+                       message: Message, wait_s: float = 3.0) -> int:
+    """Publish one message once a subscriber matches its key (waiting up to ``wait_s``; with
+    none by then, it is published anyway and a warning names the key)."""
     with open_session(settings) as session:
         bus = Bus(session, Keys(namespace), "cli")
-        await asyncio.sleep(settle_s)
+        deadline = time.monotonic() + wait_s
+        while not bus.has_subscribers(suffix, message.zenoh_encoding()):
+            if time.monotonic() > deadline:
+                print(f"shepherd: warning: nothing subscribes to {bus.keys.key(suffix)} "
+                      f"after {wait_s:.0f} s (is the service running and connected?)",
+                      file=sys.stderr)
+                break
+            await asyncio.sleep(0.05)
+        await asyncio.sleep(0.05)  # the subscriber's side of the match
         bus.put(suffix, message)
         print(printable(f"{suffix}: {describe(message)}"))
         await asyncio.sleep(0.1)
