@@ -179,9 +179,9 @@ def _distractor_shape(kind: str, rng: np.random.Generator) -> list[np.ndarray]:
         quad = np.array([[-w, -h], [w, -h], [w, h], [-w, h]]) / 2
         quad = quad * (1 + rng.uniform(-0.12, 0.12, (4, 1)))  # perspective, roughly
         return [_rotated(quad, rng.uniform(0, np.pi))]
-    if kind == "rhombus":  # another shape: wider than tall, or much thinner than ours
+    if kind == "rhombus":  # another shape: at least as wide as tall (ours is taller)
         v = rng.uniform(30, 140)
-        ratio = rng.uniform(1.1, 1.6) if rng.random() < 0.5 else rng.uniform(0.3, 0.45)
+        ratio = rng.uniform(1.0, 1.6)
         quad = np.array([[-ratio * v, 0], [0, -v], [ratio * v, 0], [0, v]]) / 2
         return [_rotated(quad, np.radians(rng.uniform(-15, 15)))]
     if kind == "cup":  # a body with an elliptic rim and base

@@ -75,7 +75,7 @@ def random_views(n: int, seed: int = 0, *, camera: CameraModel | None = None,
                  brightness: tuple[float, float] = (0.5, 1.0), margin_px: float = 8.0,
                  clutter: bool = True, webcam: dict[str, object] | bool = False,
                  ink: str = "nominal", min_off_normal_deg: float = 0.0,
-                 max_tilt_azimuth_deg: float | None = None,
+                 max_tilt_azimuth_deg: float | None = 25.0,
                  hazard: Callable[[np.random.Generator], dict[str, object]] | None = None,
                  draw_marker: bool = True) -> Iterator[View]:
     """Seeded random views of a wholly visible marker (plus the humanoid body behind it).
@@ -83,9 +83,10 @@ def random_views(n: int, seed: int = 0, *, camera: CameraModel | None = None,
     ``webcam``: render through ``random_webcam`` (a dict fixes some of its fields) in
     photographed rooms, the body behind the marker on half of the views; ``ink`` names the
     marker's ink (``render.INKS_BGR``). ``max_tilt_azimuth_deg``: the axis the marker turns
-    about stays within this of its vertical axis (the deployment's views: the humanoid turns,
-    the camera stays level); default: any axis on 30 % of the views, within 22 degrees on
-    the rest. ``hazard``: draws ``RenderStyle`` and ``WebcamParams`` overrides per view
+    about stays within this of its vertical axis (the deployment's views: the humanoid turns
+    in front of a level camera at about its height); None: any axis on 30 % of the views,
+    within 22 degrees on the rest (views the extractor refuses as not the deployment's when
+    the vertical diagonal is foreshortened beyond ``ExtractorParams.max_pitch_deg``). ``hazard``: draws ``RenderStyle`` and ``WebcamParams`` overrides per view
     (``HARD_CONDITIONS``; keys of ``WebcamParams`` go to the webcam)."""
     camera = camera or CameraModel.paper()
     geometry = geometry or Geometry()

@@ -33,6 +33,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from services.core.mounts import Geometry
 from services.vertex_extractor import lines, paper, scan
 from services.vertex_extractor.colour import ColourModel, grid_mask
 
@@ -55,6 +56,22 @@ class ExtractorParams(BaseModel):
     max_residual_px: float = Field(default=0.8, gt=0)
     min_points_per_edge: int = Field(default=4, ge=2)
     min_angle_deg: float = Field(default=25.0, gt=0, lt=90)
+    max_off_normal_deg: float = Field(
+        default=75.0, gt=0, lt=90, description="views further off the marker's normal are "
+        "refused (the quadrilateral is then more likely something else)")
+    max_roll_deg: float = Field(default=30.0, gt=0, le=180,
+                                description="largest roll of the marker in the image")
+    max_pitch_deg: float = Field(
+        default=35.0, gt=0, le=90,
+        description="largest turn about the marker's horizontal axis (its vertical diagonal "
+                    "foreshortened): small when the camera and the marker stand upright at "
+                    "similar heights; raise it for a camera looking down")
+    max_vertex_sigma_px: float = Field(
+        default=1.0, gt=0, description="a detection whose vertex uncertainty (1 sigma, "
+                                       "largest axis) exceeds this is refused")
+    max_outside_share: float = Field(
+        default=0.2, gt=0, le=1, description="share of one edge's points allowed outside the "
+                                             "quadrilateral (beyond its line's noise band)")
     max_candidates: int = Field(default=6, ge=1, le=64,
                                 description="blobs tried, largest first, on a cold search")
     method: Literal["ours", "paper"] = Field(
@@ -78,6 +95,7 @@ class Detection:
     reason: str = ""
     tracked: bool = False
     edge_points: tuple[np.ndarray, np.ndarray] | None = None  # U and D points (for plots)
+    vertices_cov_px2: np.ndarray | None = None  # (4, 2, 2) per-vertex covariance, px²
 
 
 def _miss(reason: str, tracked: bool = False) -> Detection:
@@ -87,8 +105,15 @@ def _miss(reason: str, tracked: bool = False) -> Detection:
 class RhombusExtractor:
     """Stateful extractor: remembers the last marker to seed the next frame (tracking)."""
 
-    def __init__(self, params: ExtractorParams | None = None) -> None:
+    def __init__(self, params: ExtractorParams | None = None,
+                 diagonal_ratio: float | None = None) -> None:
+        """``diagonal_ratio``: the marker's horizontal diagonal over its vertical one
+        (default: the default ``Geometry``'s)."""
         self.params = params or ExtractorParams()
+        if diagonal_ratio is None:
+            g = Geometry()
+            diagonal_ratio = g.marker_width_m / g.marker_height_m
+        self.diagonal_ratio = diagonal_ratio
         self._seed: tuple[int, int, int] | None = None  # x, y, search radius (px)
 
     def reset(self) -> None:
@@ -228,20 +253,50 @@ class RhombusExtractor:
             return _miss(f"marker too small ({n} usable columns)", tracked)
         if status == scan.LOW_CONTRAST:
             return _miss(f"marker contrast too low ({contrast:.0f} grey levels)", tracked)
-        fit, v, residual = lines.fit_rhombus(u, d, p.min_points_per_edge, 2)
-        if fit == lines.TOO_FEW_POINTS:
-            return _miss("too few edge points on one side (partly hidden?)", tracked)
-        if fit == lines.PARALLEL:
-            return _miss("parallel edges: not a rhombus", tracked)
+        u = u[np.isfinite(u[:, 1])]  # points where no edge could be measured
+        d = d[np.isfinite(d[:, 1])]
+        if u.shape[0] < 2 * p.min_points_per_edge + 4 or d.shape[0] < 2 * p.min_points_per_edge + 4:
+            return _miss("too few measurable edge points (shadowed, hidden or washed out)",
+                         tracked)
+        cx = 0.5 * (u[:, 0].mean() + d[:, 0].mean())
+        cy = 0.5 * (u[:, 1].mean() + d[:, 1].mean())
+        fit, v, residual, cov, _ = lines.fit_rhombus_robust(
+            u, d, p.min_points_per_edge, 2, cx, cy, p.max_outside_share)
+        if fit != lines.FIT_OK:
+            return _miss(_fits[fit], tracked)
         verdict, quad_area, amin, amax = lines.check_rhombus(
             v, residual, float(area), size[0], size[1], p.min_angle_deg, p.max_residual_px)
         if verdict != lines.PLAUSIBLE:
             return _miss(_verdicts[verdict].format(residual=residual, area=quad_area,
                                                    blob=area, amin=amin, amax=amax), tracked)
+        tilt, roll, pitch, _ = lines.weak_view(v, self.diagonal_ratio)
+        if tilt > p.max_off_normal_deg or roll > p.max_roll_deg or pitch > p.max_pitch_deg:
+            return _miss(f"not the marker's shape in any expected view (as the marker it would "
+                         f"be {tilt:.0f} deg off its normal, rolled {roll:.0f} deg, "
+                         f"{pitch:.0f} deg about its horizontal axis)", tracked)
+        cov = cov * COV_SCALE + COV_FLOOR_PX2 * np.eye(2)
+        sigma = float(np.sqrt(np.linalg.eigvalsh(cov).max()))
+        if sigma > p.max_vertex_sigma_px:
+            return _miss(f"vertex uncertainty too large ({sigma:.2f} px, 1 sigma)", tracked)
         ratio = min(quad_area / (size[0] * size[1]), 1.0)
-        return Detection(True, v, ratio, residual, "", tracked, (u, d))
+        return Detection(True, v, ratio, residual, "", tracked, (u, d), cov)
 
 
+#: The line fits' covariance treats edge points as independent; neighbouring columns share
+#: pixels through the optics blur, the demosaicing and JPEG, so it is scaled (and floored by
+#: the renderer-independent error of the edge model) to make the squared vertex errors
+#: normalised by it average 2 on webcam renders (``tests/test_vertex_extractor.py``).
+COV_SCALE = 4.0
+COV_FLOOR_PX2 = 0.0004
+
+_fits = {
+    lines.TOO_FEW_POINTS: "too few edge points on one side (partly hidden?)",
+    lines.PARALLEL: "parallel edges: not a rhombus",
+    lines.HIDDEN_EDGE: "an edge is mostly hidden or not straight (fewer than half its points "
+                       "on one line)",
+    lines.OUTSIDE_POINTS: "marker-coloured edge points outside the fitted quadrilateral (not "
+                          "the whole marker)",
+}
 _verdicts = {
     lines.NOT_FINITE: "vertices not finite",
     lines.OUTSIDE: "a vertex falls outside the image (marker cut by the border)",
