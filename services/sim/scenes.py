@@ -86,7 +86,8 @@ def random_views(n: int, seed: int = 0, *, camera: CameraModel | None = None,
     about stays within this of its vertical axis (the deployment's views: the humanoid turns
     in front of a level camera at about its height); None: any axis on 30 % of the views,
     within 22 degrees on the rest (views the extractor refuses as not the deployment's when
-    the vertical diagonal is foreshortened beyond ``ExtractorParams.max_pitch_deg``). ``hazard``: draws ``RenderStyle`` and ``WebcamParams`` overrides per view
+    the vertical diagonal is foreshortened beyond ``ExtractorParams.max_pitch_deg``).
+    ``hazard``: draws ``RenderStyle`` and ``WebcamParams`` overrides per view
     (``HARD_CONDITIONS``; keys of ``WebcamParams`` go to the webcam)."""
     camera = camera or CameraModel.paper()
     geometry = geometry or Geometry()
