@@ -213,10 +213,25 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
             # more than noise (a shadow, a highlight); the whole edge's (less noisy) elsewhere
             near = 0.0
             far = 0.0
+            before = 0.0
+            after = 0.0
+            nb = colour[side, i + 1, 3] - colour[side, i0, 3]
+            na = colour[side, i1, 3] - colour[side, i, 3]
             for c in range(3):
                 near += w[c] * (colour[side, i1, c] - colour[side, i0, c]) / count
                 far += w[c] * colour[side, n, c] / total
-            t = min(max((abs(near - far) / max(far, 1e-9) - 0.03) / 0.05, 0.0), 1.0)
+                before += w[c] * (colour[side, i + 1, c] - colour[side, i0, c]) / max(nb, 1.0)
+                after += w[c] * (colour[side, i1, c] - colour[side, i, c]) / max(na, 1.0)
+            if nb >= LOCAL_ROWS and na >= LOCAL_ROWS and \
+                    abs(before - after) > LEVEL_STEP * max(before, after):
+                # a shadow's boundary or a highlight crosses the edge here: the inside level
+                # changes within the window's reach
+                if side == 0:
+                    u[i, 1] = np.nan
+                else:
+                    d[i, 1] = np.nan
+                continue
+            t = min(max((abs(near - far) / max(far, 1e-9) - 0.08) / 0.08, 0.0), 1.0)
             for c in range(3):
                 local[c] = (t * (colour[side, i1, c] - colour[side, i0, c]) / count
                             + (1.0 - t) * colour[side, n, c] / total)
@@ -249,7 +264,9 @@ def _levels(img, a, n, dx, top, bottom, gap, lut, w, m):  # type: ignore[no-unty
 
 
 LOCAL_ROWS = 3  # rows beyond the window that give the local background level
-INSIDE_SPAN = 4  # columns each side whose inside colour gives an edge point's inside level
+LEVEL_STEP = 0.2  # a change of the inside level along an edge that drops its points there
+FLAT_TOLERANCE = 0.12  # how much brighter than the inside level the window's inner rows may be
+INSIDE_SPAN = 6  # columns each side whose inside colour gives an edge point's inside level
 STEEP = 1.5     # extra window rows per unit of edge slope (rows per column)
 GLOBAL, LOCAL, CROSSING, ORTHOGONAL = 0, 1, 2, 3  # edge methods (ExtractorParams.edge)
 
@@ -318,6 +335,16 @@ def _edge(img, x, end, out, window, outer, s_in, s_out, mode, lut, w, wl,  # typ
     if span < 0.15 * (s_in - s_out) or span <= 1e-9:
         return np.nan  # no edge to measure here (a highlight, an occluder, no light)
     inv = 1.0 / span
+    # the window's inner rows must not be brighter than the inside level: a shadow's boundary
+    # running along the edge, inside the window, would move the edge outward (blur only makes
+    # them darker)
+    k0 = max(2, window // 2 + 1)
+    if window - k0 >= 1:
+        acc_in = 0.0
+        for k in range(k0, window):
+            acc_in += score(img, end - out * k, x, lut, w)
+        if (acc_in / (window - k0) - lo) * inv > 1.0 + FLAT_TOLERANCE:
+            return np.nan
     if mode == CROSSING:
         # walk outward from the run's end to the first row below half coverage
         y = end
