@@ -45,16 +45,16 @@ class ExtractorParams(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
     colour: ColourModel = Field(default_factory=ColourModel)
     dx: int = Field(default=1, ge=1, le=8, description="column step Δx (px)")
-    min_len_px: int = Field(default=12, ge=4, description="MIN_LEN: shortest chord used (px)")
+    min_len_px: int = Field(default=8, ge=4, description="MIN_LEN: shortest chord used (px)")
     window: int = Field(default=5, ge=2, le=12,
                         description="sub-pixel window: rows each side of the edge")
     outside_rows: int = Field(default=-1, ge=-1, le=12,
                               description="sub-pixel window rows outside the marker "
                                           "(-1: as many as window)")
     coarse_step: int = Field(default=8, ge=2, le=32, description="grid of the cold search (px)")
-    min_area_px: float = Field(default=200.0, gt=0, description="smaller markers are refused")
+    min_area_px: float = Field(default=120.0, gt=0, description="smaller markers are refused")
     max_residual_px: float = Field(default=0.8, gt=0)
-    min_points_per_edge: int = Field(default=4, ge=2)
+    min_points_per_edge: int = Field(default=3, ge=2)
     min_angle_deg: float = Field(default=25.0, gt=0, lt=90)
     max_off_normal_deg: float = Field(
         default=75.0, gt=0, lt=90, description="views further off the marker's normal are "
@@ -204,10 +204,14 @@ class RhombusExtractor:
         if p.method == "paper":
             det = self._paper(image, sx, sy, tracked)
         else:
-            status, area, n, contrast, u, d = scan.scan(image, sx, sy, p.min_len_px, p.dx,
-                                                        p.window, lut, model, _EDGES[p.edge],
-                                                        p.outside_rows)
+            status, area, n, contrast, u, d, box = scan.scan(
+                image, sx, sy, p.min_len_px, p.dx, p.window, lut, model, _EDGES[p.edge],
+                p.outside_rows)
             det = self._judge(status, area, n, contrast, u, d, (W, H), tracked)
+            x0, x1, y0, y1 = (int(b) for b in box)
+            if not det.found and status != scan.BORDER and y1 - y0 > 1.3 * (x1 - x0) and \
+                    det.reason.startswith(_FEW):  # (or too few columns)
+                det = self._transposed(image, sx, sy, (x0, x1, y0, y1), tracked) or det
         if det.found:
             assert det.vertices_px is not None
             (x0, y0), (x1, y1), (x2, y2), (x3, y3) = det.vertices_px.tolist()  # plain floats:
@@ -217,6 +221,23 @@ class RhombusExtractor:
         else:
             self._seed = None
         return det
+
+    def _transposed(self, image: np.ndarray, sx: int, sy: int, box: tuple[int, int, int, int],
+                    tracked: bool) -> Detection | None:
+        """A tall, narrow marker (steep views, small markers) scanned along its rows: the
+        paper's column scan on the transposed region around it. None when that fails too."""
+        p = self.params
+        H, W = image.shape[:2]
+        m = 3 * (p.window + max(p.outside_rows, p.window)) + 2 * scan.LOCAL_ROWS + 2
+        x0, x1, y0, y1 = box
+        x0, y0 = max(x0 - m, 0), max(y0 - m, 0)
+        x1, y1 = min(x1 + m, W - 1), min(y1 + m, H - 1)
+        roi = np.ascontiguousarray(image[y0:y1 + 1, x0:x1 + 1].transpose(1, 0, 2))
+        status, area, n, contrast, u, d, _ = scan.scan(
+            roi, sy - y0, sx - x0, p.min_len_px, p.dx, p.window, p.colour.lut,
+            p.colour.vector, _EDGES[p.edge], p.outside_rows)
+        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, (x0, y0))
+        return det if det.found else None
 
     def _paper(self, image: np.ndarray, sx: int, sy: int, tracked: bool) -> Detection:
         """Tables 1 and 2 as published (``paper.py``), judged by the same plausibility check
@@ -243,7 +264,10 @@ class RhombusExtractor:
         return Detection(True, v, min(quad_area / (W * H), 1.0), 0.0, "", tracked, (u, d))
 
     def _judge(self, status: int, area: int, n: int, contrast: float, u: np.ndarray,
-               d: np.ndarray, size: tuple[int, int], tracked: bool) -> Detection:
+               d: np.ndarray, size: tuple[int, int], tracked: bool,
+               transposed: tuple[int, int] | None = None) -> Detection:
+        """The scan's result as a detection or a refusal. ``transposed``: the scan ran on a
+        transposed region whose corner is at (x, y) of the image."""
         p = self.params
         if status == scan.BORDER:
             return _miss("marker touches the image border", tracked)
@@ -264,6 +288,11 @@ class RhombusExtractor:
             u, d, p.min_points_per_edge, 2, cx, cy, p.max_outside_share)
         if fit != lines.FIT_OK:
             return _miss(_fits[fit], tracked)
+        if transposed is not None:  # back to the image: (x', y') = (y, x), L T R B = T' L' B' R'
+            ox, oy = transposed
+            v = v[[1, 0, 3, 2]][:, ::-1] + (ox, oy)
+            cov = cov[[1, 0, 3, 2]][:, ::-1, ::-1]
+            u, d = u[:, ::-1] + (ox, oy), d[:, ::-1] + (ox, oy)
         verdict, quad_area, amin, amax = lines.check_rhombus(
             v, residual, float(area), size[0], size[1], p.min_angle_deg, p.max_residual_px)
         if verdict != lines.PLAUSIBLE:
@@ -286,9 +315,10 @@ class RhombusExtractor:
 #: pixels through the optics blur, the demosaicing and JPEG, so it is scaled (and floored by
 #: the renderer-independent error of the edge model) to make the squared vertex errors
 #: normalised by it average 2 on webcam renders (``tests/test_vertex_extractor.py``).
-COV_SCALE = 4.0
+COV_SCALE = 5.0
 COV_FLOOR_PX2 = 0.0004
 
+_FEW = ("too few", "marker too small (")
 _fits = {
     lines.TOO_FEW_POINTS: "too few edge points on one side (partly hidden?)",
     lines.PARALLEL: "parallel edges: not a rhombus",

@@ -95,17 +95,19 @@ def find_seed(img: np.ndarray, sx: int, sy: int, radius: int, lut: np.ndarray, m
 @njit()
 def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
          lut: np.ndarray, m: np.ndarray, edge_mode: int = 1, outer: int = -1
-         ) -> tuple[int, int, int, float, np.ndarray, np.ndarray]:
+         ) -> tuple[int, int, int, float, np.ndarray, np.ndarray, np.ndarray]:
     """Walk the marker's columns from the marker pixel (sx, sy) and measure its edges.
 
     Returns (status, blob area px, usable columns, contrast grey levels, U points (n, 2),
-    D points (n, 2)), points in pixels (x, y) on columns Δx = ``dx`` apart, over the widest
+    D points (n, 2), the walked blob's box x0, x1, y0, y1 inclusive), points in pixels
+    (x, y) on columns Δx = ``dx`` apart, over the widest
     column and its neighbours whose run is at least ``min_len`` px long (Table 1's stop).
     Status: OK, BORDER (the marker reaches the image border or the edge windows would),
     LOW_CONTRAST (less than MIN_CONTRAST between inside and outside, linear x 255).
     """
     H, W = img.shape[0], img.shape[1]
     empty = np.empty((0, 2))
+    box = np.zeros(4, np.int64)
     top = np.full(W, -1, np.int64)
     bottom = np.full(W, -1, np.int64)
     top[sx] = _run_up(img, sx, sy, lut, m)
@@ -127,13 +129,16 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     area = 0
     widest = sx
     touches = lo == 0 or hi == W
+    box[0], box[1], box[2], box[3] = lo, hi - 1, H, 0
     for x in range(lo, hi):
         area += bottom[x] - top[x] + 1
+        box[2] = min(box[2], top[x])
+        box[3] = max(box[3], bottom[x])
         touches = touches or top[x] == 0 or bottom[x] == H - 1
         if bottom[x] - top[x] > bottom[widest] - top[widest]:
             widest = x
     if touches:
-        return BORDER, area, 0, 0.0, empty, empty
+        return BORDER, area, 0, 0.0, empty, empty, box
     a = widest  # Table 1: from the widest column right and left until a run < MIN_LEN
     while a > lo and bottom[a - 1] - top[a - 1] + 1 >= min_len:
         a -= 1
@@ -141,7 +146,7 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     while z < hi and bottom[z] - top[z] + 1 >= min_len:
         z += 1
     if bottom[widest] - top[widest] + 1 < min_len:
-        return OK, area, 0, 0.0, empty, empty
+        return OK, area, 0, 0.0, empty, empty, box
     n = (z - a + dx - 1) // dx
     if outer < 0:
         outer = window
@@ -151,19 +156,19 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     for i in range(n):
         x = a + i * dx
         if top[x] < gap or bottom[x] + gap > H - 1:
-            return BORDER, area, n, 0.0, empty, empty
+            return BORDER, area, n, 0.0, empty, empty, box
         y = (top[x] + bottom[x]) // 2
         if is_marker(img, y, x, lut, m):  # not an occluder across the run
             counted += 1
             for c in range(3):
                 inside[c] += lut[img[y, x, c]]
     if counted == 0:
-        return LOW_CONTRAST, area, n, 0.0, empty, empty
+        return LOW_CONTRAST, area, n, 0.0, empty, empty, box
     w = chroma_direction(inside[0], inside[1], inside[2])  # the marker's own chroma
     s_in, s_out = _levels(img, a, n, dx, top, bottom, gap, lut, w, m)
     contrast = s_in - s_out
     if contrast < MIN_CONTRAST:
-        return LOW_CONTRAST, area, n, contrast, empty, empty
+        return LOW_CONTRAST, area, n, contrast, empty, empty, box
     u = np.empty((n, 2))
     d = np.empty((n, 2))
     wl = np.empty(3)  # the score direction at one edge point
@@ -242,7 +247,7 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
             else:
                 d[i, 1] = _edge(img, x, bottom[x], 1, window + ext, outer + ext, s_in, s_out,
                                 edge_mode, lut, w, wl, local)
-    return OK, area, n, contrast, u, d
+    return OK, area, n, contrast, u, d, box
 
 
 @njit(inline="always")
