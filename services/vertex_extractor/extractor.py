@@ -67,7 +67,7 @@ class ExtractorParams(BaseModel):
                     "foreshortened): small when the camera and the marker stand upright at "
                     "similar heights; raise it for a camera looking down")
     max_vertex_sigma_px: float = Field(
-        default=1.0, gt=0, description="a detection whose vertex uncertainty (1 sigma, "
+        default=0.7, gt=0, description="a detection whose vertex uncertainty (1 sigma, "
                                        "largest axis) exceeds this is refused")
     max_outside_share: float = Field(
         default=0.2, gt=0, le=1, description="share of one edge's points allowed outside the "
@@ -277,15 +277,13 @@ class RhombusExtractor:
             return _miss(f"marker too small ({n} usable columns)", tracked)
         if status == scan.LOW_CONTRAST:
             return _miss(f"marker contrast too low ({contrast:.0f} grey levels)", tracked)
-        u = u[np.isfinite(u[:, 1])]  # points where no edge could be measured
-        d = d[np.isfinite(d[:, 1])]
+        u, d, cx, cy = lines.finite_points(u, d)  # without points where no edge was measured
         if u.shape[0] < 2 * p.min_points_per_edge + 4 or d.shape[0] < 2 * p.min_points_per_edge + 4:
             return _miss("too few measurable edge points (shadowed, hidden or washed out)",
                          tracked)
-        cx = 0.5 * (u[:, 0].mean() + d[:, 0].mean())
-        cy = 0.5 * (u[:, 1].mean() + d[:, 1].mean())
-        fit, v, residual, cov, _ = lines.fit_rhombus_robust(
-            u, d, p.min_points_per_edge, 2, cx, cy, p.max_outside_share)
+        fit, v, residual, cov, sigma = lines.fit_rhombus_robust(
+            u, d, p.min_points_per_edge, 2, cx, cy, p.max_outside_share, COV_SCALE,
+            COV_FLOOR_PX2)
         if fit != lines.FIT_OK:
             return _miss(_fits[fit], tracked)
         if transposed is not None:  # back to the image: (x', y') = (y, x), L T R B = T' L' B' R'
@@ -303,8 +301,6 @@ class RhombusExtractor:
             return _miss(f"not the marker's shape in any expected view (as the marker it would "
                          f"be {tilt:.0f} deg off its normal, rolled {roll:.0f} deg, "
                          f"{pitch:.0f} deg about its horizontal axis)", tracked)
-        cov = cov * COV_SCALE + COV_FLOOR_PX2 * np.eye(2)
-        sigma = float(np.sqrt(np.linalg.eigvalsh(cov).max()))
         if sigma > p.max_vertex_sigma_px:
             return _miss(f"vertex uncertainty too large ({sigma:.2f} px, 1 sigma)", tracked)
         ratio = min(quad_area / (size[0] * size[1]), 1.0)

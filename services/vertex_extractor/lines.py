@@ -204,6 +204,7 @@ TUKEY_C = 4.685        # Tukey biweight constant, in robust sigmas
 INLIER_SIGMAS = 3.0    # a point within this many robust sigmas of its line is an inlier
 MIN_SIGMA_PX = 0.05    # least robust residual scale (px)
 MIN_INLIER_SHARE = 0.5  # a line with fewer inliers is not measured (hidden, or not an edge)
+FAST_SIGMAS, FAST_PX = 5.0, 0.6  # no point further than these from the Huber line: it stands
 
 
 @njit(inline="always")
@@ -255,6 +256,12 @@ def robust_line(points: np.ndarray) -> tuple[float, float, float, float, int, fl
     r = np.empty(n)
     w = np.ones(n)
     nx, ny, d, _, _ = huber_line(points)
+    for i in range(n):
+        r[i] = abs(nx * points[i, 0] + ny * points[i, 1] - d)
+    top = r.max()
+    if top <= FAST_PX and top <= max(FAST_SIGMAS * max(1.4826 * np.median(r), MIN_SIGMA_PX),
+                                     0.25):
+        return _line_stats(points, nx, ny, d)  # no gross outliers: the Huber fit stands
     best = _trimmed_cost(points, nx, ny, d, r)
     q = n // 4
     for i in range(n):
@@ -277,6 +284,16 @@ def robust_line(points: np.ndarray) -> tuple[float, float, float, float, int, fl
         nx, ny, d = _tls(points, w)
         if abs(onx - nx) + abs(ony - ny) < 1e-10 and it > 2:
             break
+    return _line_stats(points, nx, ny, d)
+
+
+@njit(inline="always")
+def _line_stats(points: np.ndarray, nx: float, ny: float, d: float
+                ) -> tuple[float, float, float, float, int, float, float, float, float, int,
+                           int]:
+    """``robust_line``'s result for the line (nx, ny, d)."""
+    n = points.shape[0]
+    r = np.empty(n)
     for i in range(n):
         r[i] = nx * points[i, 0] + ny * points[i, 1] - d
     sigma = max(1.4826 * np.median(np.abs(r)), MIN_SIGMA_PX)
@@ -333,16 +350,17 @@ HIDDEN_EDGE, OUTSIDE_POINTS = 3, 4  # further fit statuses
 
 @njit()
 def fit_rhombus_robust(u: np.ndarray, d: np.ndarray, min_points: int, drop: int,
-                       centre_x: float, centre_y: float, max_outside_share: float
-                       ) -> tuple[int, np.ndarray, float, np.ndarray, np.ndarray]:
+                       centre_x: float, centre_y: float, max_outside_share: float,
+                       cov_scale: float = 1.0, cov_floor: float = 0.0
+                       ) -> tuple[int, np.ndarray, float, np.ndarray, float]:
     """``fit_rhombus`` that survives a hidden vertex or part of an edge: each of the four
     lines by ``robust_line``, the splits moved to where the two lines meet, and the per-vertex
     covariance of the intersections. (centre_x, centre_y): a point inside the marker.
 
     Returns (status, vertices (4, 2), RMS inlier residual px, vertex covariances (4, 2, 2)
-    px² (independent points with the line's RMS residual: the caller scales it), lines
-    (4, 11): nx, ny, d (normal outward), sigma, inliers, cx, cy, spread, sq, outliers
-    outside, points). Status FIT_OK, TOO_FEW_POINTS, PARALLEL, HIDDEN_EDGE (a line with too
+    px², the largest vertex sigma px). The covariance treats the points as independent with
+    their line's RMS residual, times ``cov_scale``, plus ``cov_floor`` px² on the diagonal.
+    Status FIT_OK, TOO_FEW_POINTS, PARALLEL, HIDDEN_EDGE (a line with too
     few inliers), OUTSIDE_POINTS (more than ``max_outside_share`` of a line's points beyond
     it, outside the quadrilateral: it is not the whole marker's edge).
     """
@@ -356,7 +374,7 @@ def fit_rhombus_robust(u: np.ndarray, d: np.ndarray, min_points: int, drop: int,
             for side in range(2):
                 part = pts[:max(k - drop, 0)] if side == 0 else pts[k + drop:]
                 if part.shape[0] < min_points:
-                    return TOO_FEW_POINTS, v, 0.0, cov, lines
+                    return TOO_FEW_POINTS, v, 0.0, cov, 0.0
                 nx, ny, dd, sg, cnt, cx, cy, spread, sq, pos, neg = robust_line(part)
                 if nx * centre_x + ny * centre_y - dd > 0:  # orient the normal outward
                     nx, ny, dd, pos, neg = -nx, -ny, -dd, neg, pos
@@ -364,8 +382,10 @@ def fit_rhombus_robust(u: np.ndarray, d: np.ndarray, min_points: int, drop: int,
                 row[0], row[1], row[2], row[3], row[4] = nx, ny, dd, sg, cnt
                 row[5], row[6], row[7], row[8] = cx, cy, spread, sq
                 row[9], row[10] = pos, part.shape[0]
-            if rnd == 2:
-                break
+            if rnd == 2 or (lines[2 * s, 9] == 0 and lines[2 * s + 1, 9] == 0 and
+                            lines[2 * s, 4] == lines[2 * s, 10] and
+                            lines[2 * s + 1, 4] == lines[2 * s + 1, 10]):
+                break  # (every point an inlier: the split stands)
             band = INLIER_SIGMAS * max(lines[2 * s, 3], lines[2 * s + 1, 3])
             k2 = robust_split(pts, k, lines[2 * s], lines[2 * s + 1], max(band, 0.5))
             k2 = min(max(k2, min_points + drop), pts.shape[0] - min_points - drop)
@@ -375,18 +395,19 @@ def fit_rhombus_robust(u: np.ndarray, d: np.ndarray, min_points: int, drop: int,
     sq_all, count = 0.0, 0
     for i in range(4):
         if lines[i, 4] < min_points or lines[i, 4] < MIN_INLIER_SHARE * lines[i, 10]:
-            return HIDDEN_EDGE, v, 0.0, cov, lines
+            return HIDDEN_EDGE, v, 0.0, cov, 0.0
         if lines[i, 9] > max_outside_share * lines[i, 10]:
-            return OUTSIDE_POINTS, v, 0.0, cov, lines
+            return OUTSIDE_POINTS, v, 0.0, cov, 0.0
         sq_all += lines[i, 8]
         count += int(lines[i, 4])
+    sigma_max = 0.0
     for vi in range(4):  # left = 0 x 2, top = 0 x 1, right = 1 x 3, bottom = 2 x 3
         i = 0 if vi < 2 else (1 if vi == 2 else 2)
         j = 2 if vi == 0 else (1 if vi == 1 else 3)
         a, b = lines[i], lines[j]
         det = a[0] * b[1] - a[1] * b[0]
         if abs(det) < 1e-9:
-            return PARALLEL, v, 0.0, cov, lines
+            return PARALLEL, v, 0.0, cov, 0.0
         x = (a[2] * b[1] - b[2] * a[1]) / det
         y = (a[0] * b[2] - b[0] * a[2]) / det
         v[vi, 0], v[vi, 1] = x, y
@@ -398,11 +419,13 @@ def fit_rhombus_robust(u: np.ndarray, d: np.ndarray, min_points: int, drop: int,
         vb = b[3] ** 2 * (1.0 / b[4] + sb * sb / max(b[7], 1e-9))
         j00, j01 = b[1] / det, -a[1] / det
         j10, j11 = -b[0] / det, a[0] / det
-        cov[vi, 0, 0] = j00 * j00 * va + j01 * j01 * vb
-        cov[vi, 0, 1] = j00 * j10 * va + j01 * j11 * vb
-        cov[vi, 1, 0] = cov[vi, 0, 1]
-        cov[vi, 1, 1] = j10 * j10 * va + j11 * j11 * vb
-    return FIT_OK, v, math.sqrt(sq_all / max(count, 1)), cov, lines
+        cxx = cov_scale * (j00 * j00 * va + j01 * j01 * vb) + cov_floor
+        cxy = cov_scale * (j00 * j10 * va + j01 * j11 * vb)
+        cyy = cov_scale * (j10 * j10 * va + j11 * j11 * vb) + cov_floor
+        cov[vi, 0, 0], cov[vi, 0, 1], cov[vi, 1, 0], cov[vi, 1, 1] = cxx, cxy, cxy, cyy
+        top = 0.5 * (cxx + cyy) + math.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
+        sigma_max = max(sigma_max, math.sqrt(top))
+    return FIT_OK, v, math.sqrt(sq_all / max(count, 1)), cov, sigma_max
 
 
 @njit()
@@ -433,3 +456,18 @@ def weak_view(v: np.ndarray, diagonal_ratio: float) -> tuple[float, float, float
     vertical = math.hypot(a01, a11) / s1
     pitch = math.degrees(math.acos(min(vertical, 1.0)))
     return tilt, roll, pitch, s1
+
+
+@njit()
+def finite_points(u: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """U and D points without the unmeasured ones (NaN rows), and their centre (x, y)."""
+    out = []
+    cx = cy = 0.0
+    for pts in (u, d):
+        keep = np.isfinite(pts[:, 1])
+        kept = pts[keep]
+        if kept.shape[0] > 0:
+            cx += 0.5 * kept[:, 0].mean()
+            cy += 0.5 * kept[:, 1].mean()
+        out.append(kept)
+    return out[0], out[1], cx, cy
