@@ -31,7 +31,7 @@ def _run(condition: str, n: int, seed: int = 3) -> tuple[list[np.ndarray], int, 
         ex.reset()
         det = ex.extract(r.image)
         assert det.found or det.reason  # every refusal says why
-        if det.found:
+        if det.found and det.vertices_px is not None and r.vertices_px is not None:
             e = np.linalg.norm(det.vertices_px - r.vertices_px, axis=1)
             errors.append(e)
             wrong += bool(e.max() > 2.0)
@@ -41,7 +41,7 @@ def _run(condition: str, n: int, seed: int = 3) -> tuple[list[np.ndarray], int, 
 
 def _style(**hazards: object) -> RenderStyle:
     return RenderStyle(seed=5, noise_sigma=0.0, photos=True, draw_body=False,
-                       camera=WebcamParams(jpeg_quality=0), hazards=Hazards(**hazards))
+                       camera=WebcamParams(jpeg_quality=0), hazards=Hazards.model_validate(hazards))
 
 
 def _view(style: RenderStyle, off_normal_deg: float = 10.0, distance_m: float = 0.3):
