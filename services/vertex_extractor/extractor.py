@@ -17,11 +17,29 @@ Where we depart from the paper, keeping its spirit:
   residual over all split points, from prefix moments) and total-least-squares fits with
   Huber weights (``lines.py``); columns at the split are dropped (their window straddles a
   vertex).
+- Both levels of each edge point's sum are local (``scan._edge``): a shadow's boundary across
+  the marker moves no edge; where the inside level steps along an edge (the boundary crosses
+  it) or no contrast is left (a clipped highlight, an occluder), the point is dropped.
+- Each line is fitted robustly (``lines.robust_line``: Huber, then Tukey's biweight from the
+  better of it and the middle half), the split moved to where the two lines meet: an arm over
+  a vertex or part of an edge is left out and the vertex comes from the visible lines; a line
+  with fewer than half its points on it, or many points outside the quadrilateral, refuses.
 - A plausibility check (convex, sensible angles, enough points per edge, small residual, area
-  consistent with the blob) turns anything else into ``found = False`` with a reason.
+  consistent with the blob, up to 30 % hidden) and a shape test: by weak perspective, the
+  quadrilateral must be the deployment's rhombus seen at most ``max_off_normal_deg`` off its
+  normal, rolled at most ``max_roll_deg`` and turned at most ``max_pitch_deg`` about its
+  horizontal axis (a level camera at about the marker's height), so that a card, a square or
+  a wide rhombus in the same ink is refused. Anything else is ``found = False`` with a reason.
+- Each detection carries its per-vertex covariance (px²): the line fits' offset and angle
+  variances propagated through the intersections, scaled for the points' correlation
+  (``COV_SCALE``); one whose largest sigma exceeds ``max_vertex_sigma_px`` is refused.
+- A tall, narrow marker (steep views) is scanned along its rows when its columns are too few.
 
 Limits: one marker per frame (two similar blobs on a cold search are refused as ambiguous);
-the marker's horizontal diagonal must be the wider one within about 35 degrees of roll.
+without intrinsics the shape test cannot tell the marker from a rhombus of another shape
+that is a view of it (a narrower one seen face on is the marker turned about its vertical
+axis); motion blur longer than the sum window biases steep edges (its covariance then
+understates the error).
 """
 
 from __future__ import annotations
@@ -67,7 +85,7 @@ class ExtractorParams(BaseModel):
                     "foreshortened): small when the camera and the marker stand upright at "
                     "similar heights; raise it for a camera looking down")
     max_vertex_sigma_px: float = Field(
-        default=0.7, gt=0, description="a detection whose vertex uncertainty (1 sigma, "
+        default=1.0, gt=0, description="a detection whose vertex uncertainty (1 sigma, "
                                        "largest axis) exceeds this is refused")
     max_outside_share: float = Field(
         default=0.2, gt=0, le=1, description="share of one edge's points allowed outside the "
