@@ -167,3 +167,20 @@ def test_vertex_uncertainty_is_honest_on_webcam_renders():
             e = det.vertices_px - r.vertices_px
             nees += [float(e[k] @ np.linalg.solve(cov[k], e[k])) for k in range(4)]
     assert 1.5 <= np.mean(nees) <= 3.0, np.mean(nees)
+
+
+def test_the_simulator_takes_its_hazards_from_the_deployment():
+    from services.core.world import World
+    from services.runtime.config import ConfigError, parse_deployment
+    from services.sim.service import build_world
+    dep = parse_deployment({"services": {"sim": {"hazards": {
+        "shadow_factor": 0.4, "shadow_softness_px": 20, "distractors": ["card", "cup"]}}}})
+    config = dep.settings["sim"]
+    world = build_world(config, dep.geometry, World())  # type: ignore[arg-type]
+    h = world.style.hazards
+    assert h is not None and h.shadow_factor == 0.4 and h.distractors == ("card", "cup")
+    plain = parse_deployment({"services": {"sim": {}}})
+    assert build_world(plain.settings["sim"], plain.geometry,  # type: ignore[arg-type]
+                       World()).style.hazards is None
+    with pytest.raises(ConfigError, match=r"hazards\.shadow_factor"):
+        parse_deployment({"services": {"sim": {"hazards": {"shadow_factor": 2.0}}}})
