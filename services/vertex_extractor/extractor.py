@@ -63,16 +63,20 @@ class ExtractorParams(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
     colour: ColourModel = Field(default_factory=ColourModel)
     dx: int = Field(default=1, ge=1, le=8, description="column step Δx (px)")
-    min_len_px: int = Field(default=8, ge=4, description="MIN_LEN: shortest chord used (px)")
+    min_len_px: int = Field(default=12, ge=4, description="MIN_LEN: shortest chord used (px)")
     window: int = Field(default=5, ge=2, le=12,
                         description="sub-pixel window: rows each side of the edge")
     outside_rows: int = Field(default=-1, ge=-1, le=12,
                               description="sub-pixel window rows outside the marker "
                                           "(-1: as many as window)")
     coarse_step: int = Field(default=8, ge=2, le=32, description="grid of the cold search (px)")
-    min_area_px: float = Field(default=120.0, gt=0, description="smaller markers are refused")
+    min_area_px: float = Field(default=200.0, gt=0, description="smaller markers are refused")
     max_residual_px: float = Field(default=0.8, gt=0)
-    min_points_per_edge: int = Field(default=3, ge=2)
+    min_points_per_edge: int = Field(default=4, ge=2)
+    small_min_len_px: int = Field(default=8, ge=4, description="MIN_LEN on a second try when "
+                                  "the marker is too small for the first (25-40 px markers)")
+    small_min_points_per_edge: int = Field(default=3, ge=2)
+    small_min_area_px: float = Field(default=120.0, gt=0)
     min_angle_deg: float = Field(default=25.0, gt=0, lt=90)
     max_off_normal_deg: float = Field(
         default=75.0, gt=0, lt=90, description="views further off the marker's normal are "
@@ -85,7 +89,7 @@ class ExtractorParams(BaseModel):
                     "foreshortened): small when the camera and the marker stand upright at "
                     "similar heights; raise it for a camera looking down")
     max_vertex_sigma_px: float = Field(
-        default=1.0, gt=0, description="a detection whose vertex uncertainty (1 sigma, "
+        default=1.2, gt=0, description="a detection whose vertex uncertainty (1 sigma, "
                                        "largest axis) exceeds this is refused")
     max_outside_share: float = Field(
         default=0.2, gt=0, le=1, description="share of one edge's points allowed outside the "
@@ -132,6 +136,11 @@ class RhombusExtractor:
             g = Geometry()
             diagonal_ratio = g.marker_width_m / g.marker_height_m
         self.diagonal_ratio = diagonal_ratio
+        p = self.params  # a small marker's second chance: shorter chords, fewer points
+        self._small = p.model_copy(update=dict(
+            min_len_px=min(p.min_len_px, p.small_min_len_px),
+            min_points_per_edge=min(p.min_points_per_edge, p.small_min_points_per_edge),
+            min_area_px=min(p.min_area_px, p.small_min_area_px)))
         self._seed: tuple[int, int, int] | None = None  # x, y, search radius (px)
 
     def reset(self) -> None:
@@ -213,7 +222,6 @@ class RhombusExtractor:
     def _extract_from(self, image: np.ndarray, seed: tuple[int, int, int],
                       tracked: bool) -> Detection:
         p = self.params
-        H, W = image.shape[:2]
         lut, model = p.colour.lut, p.colour.vector
         sx, sy = scan.find_seed(image, seed[0], seed[1], seed[2], lut, model)
         if sx < 0:
@@ -222,14 +230,9 @@ class RhombusExtractor:
         if p.method == "paper":
             det = self._paper(image, sx, sy, tracked)
         else:
-            status, area, n, contrast, u, d, box = scan.scan(
-                image, sx, sy, p.min_len_px, p.dx, p.window, lut, model, _EDGES[p.edge],
-                p.outside_rows)
-            det = self._judge(status, area, n, contrast, u, d, (W, H), tracked)
-            x0, x1, y0, y1 = (int(b) for b in box)
-            if not det.found and status != scan.BORDER and y1 - y0 > 1.3 * (x1 - x0) and \
-                    det.reason.startswith(_FEW):  # (or too few columns)
-                det = self._transposed(image, sx, sy, (x0, x1, y0, y1), tracked) or det
+            det = self._measure(image, sx, sy, tracked, p)
+            if not det.found and det.reason.startswith(_FEW):  # a small marker?
+                det = self._measure(image, sx, sy, tracked, self._small)
         if det.found:
             assert det.vertices_px is not None
             (x0, y0), (x1, y1), (x2, y2), (x3, y3) = det.vertices_px.tolist()  # plain floats:
@@ -240,11 +243,25 @@ class RhombusExtractor:
             self._seed = None
         return det
 
+    def _measure(self, image: np.ndarray, sx: int, sy: int, tracked: bool,
+                 p: ExtractorParams) -> Detection:
+        """Scan from the marker pixel (sx, sy) and judge, along the columns and, for a tall
+        narrow marker whose columns are too few, along the rows."""
+        H, W = image.shape[:2]
+        status, area, n, contrast, u, d, box = scan.scan(
+            image, sx, sy, p.min_len_px, p.dx, p.window, p.colour.lut, p.colour.vector,
+            _EDGES[p.edge], p.outside_rows)
+        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p)
+        x0, x1, y0, y1 = (int(b) for b in box)
+        if not det.found and status != scan.BORDER and y1 - y0 > 1.3 * (x1 - x0) and \
+                det.reason.startswith(_FEW):
+            det = self._transposed(image, sx, sy, (x0, x1, y0, y1), tracked, p) or det
+        return det
+
     def _transposed(self, image: np.ndarray, sx: int, sy: int, box: tuple[int, int, int, int],
-                    tracked: bool) -> Detection | None:
+                    tracked: bool, p: ExtractorParams) -> Detection | None:
         """A tall, narrow marker (steep views, small markers) scanned along its rows: the
         paper's column scan on the transposed region around it. None when that fails too."""
-        p = self.params
         H, W = image.shape[:2]
         m = 3 * (p.window + max(p.outside_rows, p.window)) + 2 * scan.LOCAL_ROWS + 2
         x0, x1, y0, y1 = box
@@ -254,7 +271,7 @@ class RhombusExtractor:
         status, area, n, contrast, u, d, _ = scan.scan(
             roi, sy - y0, sx - x0, p.min_len_px, p.dx, p.window, p.colour.lut,
             p.colour.vector, _EDGES[p.edge], p.outside_rows)
-        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, (x0, y0))
+        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p, (x0, y0))
         return det if det.found else None
 
     def _paper(self, image: np.ndarray, sx: int, sy: int, tracked: bool) -> Detection:
@@ -282,11 +299,10 @@ class RhombusExtractor:
         return Detection(True, v, min(quad_area / (W * H), 1.0), 0.0, "", tracked, (u, d))
 
     def _judge(self, status: int, area: int, n: int, contrast: float, u: np.ndarray,
-               d: np.ndarray, size: tuple[int, int], tracked: bool,
+               d: np.ndarray, size: tuple[int, int], tracked: bool, p: ExtractorParams,
                transposed: tuple[int, int] | None = None) -> Detection:
         """The scan's result as a detection or a refusal. ``transposed``: the scan ran on a
         transposed region whose corner is at (x, y) of the image."""
-        p = self.params
         if status == scan.BORDER:
             return _miss("marker touches the image border", tracked)
         if area < p.min_area_px:
