@@ -84,7 +84,7 @@ class ExtractorParams(BaseModel):
     max_roll_deg: float = Field(default=30.0, gt=0, le=180,
                                 description="largest roll of the marker in the image")
     max_pitch_deg: float = Field(
-        default=35.0, gt=0, le=90,
+        default=30.0, gt=0, le=90,
         description="largest turn about the marker's horizontal axis (its vertical diagonal "
                     "foreshortened): small when the camera and the marker stand upright at "
                     "similar heights; raise it for a camera looking down")
