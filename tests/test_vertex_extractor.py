@@ -106,8 +106,11 @@ def _bad_frames():
     cx, cy = v.mean(0).astype(int)
     hidden[cy - 60:cy + 5, cx - 8:cx + 70] = (40, 40, 40)
     yield "partly hidden", hidden, ("do not make a convex quadrilateral", "partly hidden")
-    small = render_marker(2.5)
-    yield "too small", small.image, "small"
+    small = np.full_like(img, 120)  # an 18 px marker: below the smallest (25 px) found
+    tiny = np.array([[313.2, 240], [320, 231], [326.8, 240], [320, 249]])
+    cv2.fillConvexPoly(small, np.round(tiny * 16).astype(np.int32), (255, 0, 255),
+                       cv2.LINE_AA, 4)
+    yield "too small", small, "small"
 
 
 @pytest.mark.parametrize("name,image,reason", list(_bad_frames()),
@@ -153,4 +156,8 @@ def test_service_publishes_vertices_and_survives_bad_frames(router, make_bus):
             cv2.contourArea(r.vertices_px.astype(np.float32)) / (640 * 480), rel=0.01)
         assert 1 not in msgs and 2 not in msgs  # rejected by the bus, counted, not fatal
         assert math.isfinite(msgs[5].residual_px)
+        cov = np.array(msgs[5].vertices_cov_px2)  # per-vertex 2 x 2, px²
+        assert cov.shape == (4, 2, 2) and np.all(np.linalg.eigvalsh(cov) > 0)
+        assert np.all(np.sqrt(np.linalg.eigvalsh(cov)) < 0.5)
+        assert msgs[3].vertices_cov_px2 is None
     asyncio.run(go())

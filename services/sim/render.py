@@ -14,13 +14,14 @@ marker's ink) and passes it through the camera's stages.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from functools import lru_cache
 
 import cv2
 import numpy as np
 
 from services.core.camera import CameraModel
+from services.sim import hazards as hz
 from services.sim import textures
 from services.sim.webcam import WebcamParams, expose, linear_to_srgb, srgb_to_linear
 
@@ -51,6 +52,7 @@ class RenderStyle:
     background_level: int | None = None  # flat grey background instead of clutter
     camera: WebcamParams | None = None   # the webcam; None: the ideal camera
     photos: bool = False                 # webcam scenes: photographed walls and floor
+    hazards: hz.Hazards | None = None    # webcam scenes: shadows, occluders, ... (hazards.py)
 
 
 @dataclass(frozen=True)
@@ -62,6 +64,7 @@ class Rendered:
     T_camera_marker: np.ndarray       # 4x4
     marker_visible: bool              # drawn, facing the camera and wholly inside the image
     coverage_area_px: float           # rendered marker area (sum of coverage)
+    occluded_fraction: float = 0.0    # share of the marker's area hidden by an occluder
 
 
 @lru_cache(maxsize=8)
@@ -275,15 +278,28 @@ def _render_webcam(camera: CameraModel, T_camera_marker: np.ndarray,
         _draw_body(img, camera, T_camera_humanoid,
                    srgb_to_linear(np.array(BODY_BGR) / 255.0).astype(np.float32), True)
     ink = srgb_to_linear(np.array(style.marker_bgr) / 255.0).astype(np.float32)
+    h = style.hazards
+    if h is not None and h.distractors:
+        in_front = (T_camera_marker[:3, :3] @ marker_points_m.T).T + T_camera_marker[:3, 3]
+        avoid = camera.project(in_front) if draw_marker and np.all(in_front[:, 2] > 0.01) \
+            else None
+        hz.draw_distractors(img, h, avoid)
     vertices_px, facing, area = _draw_marker(img, camera, T_camera_marker, marker_points_m, ink,
                                              draw_marker)
+    hidden = 0.0
+    if h is not None and vertices_px is not None and draw_marker and facing:
+        cov = hz.poly_coverage(vertices_px, (H, W)) if h.occluder != "none" else None
+        hidden = hz.apply_foreground(img, h, vertices_px, cov)
     img *= style.brightness
     if style.motion_blur_px > 0.5:
         img = cv2.filter2D(img, -1, _blur_kernel(style.motion_blur_px,
                                                  style.motion_blur_angle_deg))
+    if h is not None:
+        img, vertices_px = hz.apply_optics(img, h, vertices_px)
     rng = np.random.default_rng([style.seed, frame_index])
     image = expose(img, style.camera, rng)
-    return _rendered(image, vertices_px, T_camera_marker, facing, draw_marker, area)
+    out = _rendered(image, vertices_px, T_camera_marker, facing, draw_marker, area)
+    return replace(out, occluded_fraction=hidden) if hidden else out
 
 
 @lru_cache(maxsize=16)

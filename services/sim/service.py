@@ -28,6 +28,7 @@ from services.runtime.config import RelPath, ServiceSettings
 from services.runtime.context import ServiceContext
 from services.runtime.frames import encode_frame
 from services.sim.camera_robot import CameraRobotParams
+from services.sim.hazards import Hazards
 from services.sim.humanoid import HumanoidParams
 from services.sim.render import INKS_BGR, RenderStyle
 from services.sim.state import SimWorld
@@ -59,6 +60,8 @@ class Settings(ServiceSettings):
     camera: WebcamParams = Field(default_factory=WebcamParams,
                                  description="the simulated webcam; ideal = true: ideal renders")
     photos: bool = Field(default=True, description="photographed walls and floor (webcam)")
+    hazards: Hazards = Field(default_factory=Hazards,
+                             description="shadows, occluders, highlights, distractors (webcam)")
     ink: Literal["nominal", "process", "bluish"] = Field(
         default="nominal", description="the marker's printed ink (render.INKS_BGR)")
     realtime: bool = Field(default=True, description="pace frames to the wall clock")
@@ -71,7 +74,8 @@ def build_world(config: Settings, geometry: Geometry, world: World) -> SimWorld:
                         noise_sigma=config.noise_sigma, motion_blur_px=config.motion_blur_px,
                         clutter=config.clutter, distractors=config.clutter,
                         marker_bgr=INKS_BGR[config.ink], camera=config.camera,
-                        photos=config.photos)
+                        photos=config.photos,
+                        hazards=config.hazards if config.hazards.any else None)
     return SimWorld(camera=camera, geometry=geometry, world=world,
                     humanoid_start=config.humanoid_start, camera_start=config.camera_start,
                     humanoid=config.humanoid, camera_robot=config.camera_robot, style=style,

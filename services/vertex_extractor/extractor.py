@@ -17,11 +17,29 @@ Where we depart from the paper, keeping its spirit:
   residual over all split points, from prefix moments) and total-least-squares fits with
   Huber weights (``lines.py``); columns at the split are dropped (their window straddles a
   vertex).
+- Both levels of each edge point's sum are local (``scan._edge``): a shadow's boundary across
+  the marker moves no edge; where the inside level steps along an edge (the boundary crosses
+  it) or no contrast is left (a clipped highlight, an occluder), the point is dropped.
+- Each line is fitted robustly (``lines.robust_line``: Huber, then Tukey's biweight from the
+  better of it and the middle half), the split moved to where the two lines meet: an arm over
+  a vertex or part of an edge is left out and the vertex comes from the visible lines; a line
+  with fewer than half its points on it, or many points outside the quadrilateral, refuses.
 - A plausibility check (convex, sensible angles, enough points per edge, small residual, area
-  consistent with the blob) turns anything else into ``found = False`` with a reason.
+  consistent with the blob, up to 30 % hidden) and a shape test: by weak perspective, the
+  quadrilateral must be the deployment's rhombus seen at most ``max_off_normal_deg`` off its
+  normal, rolled at most ``max_roll_deg`` and turned at most ``max_pitch_deg`` about its
+  horizontal axis (a level camera at about the marker's height), so that a card, a square or
+  a wide rhombus in the same ink is refused. Anything else is ``found = False`` with a reason.
+- Each detection carries its per-vertex covariance (px²): the line fits' offset and angle
+  variances propagated through the intersections, scaled for the points' correlation
+  (``COV_SCALE``); one whose largest sigma exceeds ``max_vertex_sigma_px`` is refused.
+- A tall, narrow marker (steep views) is scanned along its rows when its columns are too few.
 
 Limits: one marker per frame (two similar blobs on a cold search are refused as ambiguous);
-the marker's horizontal diagonal must be the wider one within about 35 degrees of roll.
+without intrinsics the shape test cannot tell the marker from a rhombus of another shape
+that is a view of it (a narrower one seen face on is the marker turned about its vertical
+axis); motion blur longer than the sum window biases steep edges (its covariance then
+understates the error).
 """
 
 from __future__ import annotations
@@ -33,6 +51,7 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from services.core.mounts import Geometry
 from services.vertex_extractor import lines, paper, scan
 from services.vertex_extractor.colour import ColourModel, grid_mask
 
@@ -56,8 +75,30 @@ class ExtractorParams(BaseModel):
     max_residual_px: float = Field(default=0.8, gt=0,
                                    description="edge points farther off their line: not straight")
     min_points_per_edge: int = Field(default=4, ge=2, description="fewer: partly hidden")
+    small_min_len_px: int = Field(default=8, ge=4, description="MIN_LEN on a second try when "
+                                  "the marker is too small for the first (25-40 px markers)")
+    small_min_points_per_edge: int = Field(
+        default=3, ge=2, description="min_points_per_edge on the small markers' second try")
+    small_min_area_px: float = Field(
+        default=120.0, gt=0, description="min_area_px on the small markers' second try (px²)")
     min_angle_deg: float = Field(default=25.0, gt=0, lt=90,
                                  description="sharper corners are implausible")
+    max_off_normal_deg: float = Field(
+        default=75.0, gt=0, lt=90, description="views further off the marker's normal are "
+        "refused (the quadrilateral is then more likely something else)")
+    max_roll_deg: float = Field(default=30.0, gt=0, le=180,
+                                description="largest roll of the marker in the image")
+    max_pitch_deg: float = Field(
+        default=30.0, gt=0, le=90,
+        description="largest turn about the marker's horizontal axis (its vertical diagonal "
+                    "foreshortened): small when the camera and the marker stand upright at "
+                    "similar heights; raise it for a camera looking down")
+    max_vertex_sigma_px: float = Field(
+        default=1.2, gt=0, description="a detection whose vertex uncertainty (1 sigma, "
+                                       "largest axis) exceeds this is refused")
+    max_outside_share: float = Field(
+        default=0.2, gt=0, le=1, description="share of one edge's points allowed outside the "
+                                             "quadrilateral (beyond its line's noise band)")
     max_candidates: int = Field(default=6, ge=1, le=64,
                                 description="blobs tried, largest first, on a cold search")
     method: Literal["ours", "paper"] = Field(
@@ -81,6 +122,7 @@ class Detection:
     reason: str = ""
     tracked: bool = False
     edge_points: tuple[np.ndarray, np.ndarray] | None = None  # U and D points (for plots)
+    vertices_cov_px2: np.ndarray | None = None  # (4, 2, 2) per-vertex covariance, px²
 
 
 def _miss(reason: str, tracked: bool = False) -> Detection:
@@ -90,8 +132,20 @@ def _miss(reason: str, tracked: bool = False) -> Detection:
 class RhombusExtractor:
     """Stateful extractor: remembers the last marker to seed the next frame (tracking)."""
 
-    def __init__(self, params: ExtractorParams | None = None) -> None:
+    def __init__(self, params: ExtractorParams | None = None,
+                 diagonal_ratio: float | None = None) -> None:
+        """``diagonal_ratio``: the marker's horizontal diagonal over its vertical one
+        (default: the default ``Geometry``'s)."""
         self.params = params or ExtractorParams()
+        if diagonal_ratio is None:
+            g = Geometry()
+            diagonal_ratio = g.marker_width_m / g.marker_height_m
+        self.diagonal_ratio = diagonal_ratio
+        p = self.params  # a small marker's second chance: shorter chords, fewer points
+        self._small = p.model_copy(update=dict(
+            min_len_px=min(p.min_len_px, p.small_min_len_px),
+            min_points_per_edge=min(p.min_points_per_edge, p.small_min_points_per_edge),
+            min_area_px=min(p.min_area_px, p.small_min_area_px)))
         self._seed: tuple[int, int, int] | None = None  # x, y, search radius (px)
 
     def reset(self) -> None:
@@ -173,7 +227,6 @@ class RhombusExtractor:
     def _extract_from(self, image: np.ndarray, seed: tuple[int, int, int],
                       tracked: bool) -> Detection:
         p = self.params
-        H, W = image.shape[:2]
         lut, model = p.colour.lut, p.colour.vector
         sx, sy = scan.find_seed(image, seed[0], seed[1], seed[2], lut, model)
         if sx < 0:
@@ -182,10 +235,9 @@ class RhombusExtractor:
         if p.method == "paper":
             det = self._paper(image, sx, sy, tracked)
         else:
-            status, area, n, contrast, u, d = scan.scan(image, sx, sy, p.min_len_px, p.dx,
-                                                        p.window, lut, model, _EDGES[p.edge],
-                                                        p.outside_rows)
-            det = self._judge(status, area, n, contrast, u, d, (W, H), tracked)
+            det = self._measure(image, sx, sy, tracked, p)
+            if not det.found and det.reason.startswith(_FEW):  # a small marker?
+                det = self._measure(image, sx, sy, tracked, self._small)
         if det.found:
             assert det.vertices_px is not None
             (x0, y0), (x1, y1), (x2, y2), (x3, y3) = det.vertices_px.tolist()  # plain floats:
@@ -195,6 +247,37 @@ class RhombusExtractor:
         else:
             self._seed = None
         return det
+
+    def _measure(self, image: np.ndarray, sx: int, sy: int, tracked: bool,
+                 p: ExtractorParams) -> Detection:
+        """Scan from the marker pixel (sx, sy) and judge, along the columns and, for a tall
+        narrow marker whose columns are too few, along the rows."""
+        H, W = image.shape[:2]
+        status, area, n, contrast, u, d, box = scan.scan(
+            image, sx, sy, p.min_len_px, p.dx, p.window, p.colour.lut, p.colour.vector,
+            _EDGES[p.edge], p.outside_rows)
+        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p)
+        x0, x1, y0, y1 = (int(b) for b in box)
+        if not det.found and status != scan.BORDER and y1 - y0 > 1.3 * (x1 - x0) and \
+                det.reason.startswith(_FEW):
+            det = self._transposed(image, sx, sy, (x0, x1, y0, y1), tracked, p) or det
+        return det
+
+    def _transposed(self, image: np.ndarray, sx: int, sy: int, box: tuple[int, int, int, int],
+                    tracked: bool, p: ExtractorParams) -> Detection | None:
+        """A tall, narrow marker (steep views, small markers) scanned along its rows: the
+        paper's column scan on the transposed region around it. None when that fails too."""
+        H, W = image.shape[:2]
+        m = 3 * (p.window + max(p.outside_rows, p.window)) + 2 * scan.LOCAL_ROWS + 2
+        x0, x1, y0, y1 = box
+        x0, y0 = max(x0 - m, 0), max(y0 - m, 0)
+        x1, y1 = min(x1 + m, W - 1), min(y1 + m, H - 1)
+        roi = np.ascontiguousarray(image[y0:y1 + 1, x0:x1 + 1].transpose(1, 0, 2))
+        status, area, n, contrast, u, d, _ = scan.scan(
+            roi, sy - y0, sx - x0, p.min_len_px, p.dx, p.window, p.colour.lut,
+            p.colour.vector, _EDGES[p.edge], p.outside_rows)
+        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p, (x0, y0))
+        return det if det.found else None
 
     def _paper(self, image: np.ndarray, sx: int, sy: int, tracked: bool) -> Detection:
         """Tables 1 and 2 as published (``paper.py``), judged by the same plausibility check
@@ -221,8 +304,10 @@ class RhombusExtractor:
         return Detection(True, v, min(quad_area / (W * H), 1.0), 0.0, "", tracked, (u, d))
 
     def _judge(self, status: int, area: int, n: int, contrast: float, u: np.ndarray,
-               d: np.ndarray, size: tuple[int, int], tracked: bool) -> Detection:
-        p = self.params
+               d: np.ndarray, size: tuple[int, int], tracked: bool, p: ExtractorParams,
+               transposed: tuple[int, int] | None = None) -> Detection:
+        """The scan's result as a detection or a refusal. ``transposed``: the scan ran on a
+        transposed region whose corner is at (x, y) of the image."""
         if status == scan.BORDER:
             return _miss("marker touches the image border", tracked)
         if area < p.min_area_px:
@@ -231,20 +316,52 @@ class RhombusExtractor:
             return _miss(f"marker too small ({n} usable columns)", tracked)
         if status == scan.LOW_CONTRAST:
             return _miss(f"marker contrast too low ({contrast:.0f} grey levels)", tracked)
-        fit, v, residual = lines.fit_rhombus(u, d, p.min_points_per_edge, 2)
-        if fit == lines.TOO_FEW_POINTS:
-            return _miss("too few edge points on one side (partly hidden?)", tracked)
-        if fit == lines.PARALLEL:
-            return _miss("parallel edges: not a rhombus", tracked)
+        u, d, cx, cy = lines.finite_points(u, d)  # without points where no edge was measured
+        if u.shape[0] < 2 * p.min_points_per_edge + 4 or d.shape[0] < 2 * p.min_points_per_edge + 4:
+            return _miss("too few measurable edge points (shadowed, hidden or washed out)",
+                         tracked)
+        fit, v, residual, cov, sigma = lines.fit_rhombus_robust(
+            u, d, p.min_points_per_edge, 2, cx, cy, p.max_outside_share, COV_SCALE,
+            COV_FLOOR_PX2)
+        if fit != lines.FIT_OK:
+            return _miss(_fits[fit], tracked)
+        if transposed is not None:  # back to the image: (x', y') = (y, x), L T R B = T' L' B' R'
+            ox, oy = transposed
+            v = v[[1, 0, 3, 2]][:, ::-1] + (ox, oy)
+            cov = cov[[1, 0, 3, 2]][:, ::-1, ::-1]
+            u, d = u[:, ::-1] + (ox, oy), d[:, ::-1] + (ox, oy)
         verdict, quad_area, amin, amax = lines.check_rhombus(
             v, residual, float(area), size[0], size[1], p.min_angle_deg, p.max_residual_px)
         if verdict != lines.PLAUSIBLE:
             return _miss(_verdicts[verdict].format(residual=residual, area=quad_area,
                                                    blob=area, amin=amin, amax=amax), tracked)
+        tilt, roll, pitch, _ = lines.weak_view(v, self.diagonal_ratio)
+        if tilt > p.max_off_normal_deg or roll > p.max_roll_deg or pitch > p.max_pitch_deg:
+            return _miss(f"not the marker's shape in any expected view (as the marker it would "
+                         f"be {tilt:.0f} deg off its normal, rolled {roll:.0f} deg, "
+                         f"{pitch:.0f} deg about its horizontal axis)", tracked)
+        if sigma > p.max_vertex_sigma_px:
+            return _miss(f"vertex uncertainty too large ({sigma:.2f} px, 1 sigma)", tracked)
         ratio = min(quad_area / (size[0] * size[1]), 1.0)
-        return Detection(True, v, ratio, residual, "", tracked, (u, d))
+        return Detection(True, v, ratio, residual, "", tracked, (u, d), cov)
 
 
+#: The line fits' covariance treats edge points as independent; neighbouring columns share
+#: pixels through the optics blur, the demosaicing and JPEG, so it is scaled (and floored by
+#: the renderer-independent error of the edge model) to make the squared vertex errors
+#: normalised by it average 2 on webcam renders (``tests/test_vertex_extractor.py``).
+COV_SCALE = 5.0
+COV_FLOOR_PX2 = 0.0004
+
+_FEW = ("too few", "marker too small (")
+_fits = {
+    lines.TOO_FEW_POINTS: "too few edge points on one side (partly hidden?)",
+    lines.PARALLEL: "parallel edges: not a rhombus",
+    lines.HIDDEN_EDGE: "an edge is mostly hidden or not straight (fewer than half its points "
+                       "on one line)",
+    lines.OUTSIDE_POINTS: "marker-coloured edge points outside the fitted quadrilateral (not "
+                          "the whole marker)",
+}
 _verdicts = {
     lines.NOT_FINITE: "vertices not finite",
     lines.OUTSIDE: "a vertex falls outside the image (marker cut by the border)",

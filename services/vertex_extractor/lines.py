@@ -163,8 +163,9 @@ def check_rhombus(v: np.ndarray, residual: float, blob_area: float, width: int, 
                   min_angle_deg: float, max_residual: float
                   ) -> tuple[int, float, float, float]:
     """Is the quadrilateral v (left, top, right, bottom) px the marker? Returns (verdict,
-    area px², smallest and largest corner angle deg); area is checked against the blob's
-    with a tolerance of 15% + 2 sqrt(area)."""
+    area px², smallest and largest corner angle deg); the blob's area may exceed the
+    quadrilateral's by 15% + 2 sqrt(area), and fall short of it by 30% + 2 sqrt(area) (part of
+    the marker hidden, its vertex given by the visible lines)."""
     for i in range(4):
         if not (math.isfinite(v[i, 0]) and math.isfinite(v[i, 1])):
             return NOT_FINITE, 0.0, 0.0, 0.0
@@ -193,6 +194,280 @@ def check_rhombus(v: np.ndarray, residual: float, blob_area: float, width: int, 
         return BAD_ANGLES, area, amin, amax
     if residual > max_residual:
         return NOT_STRAIGHT, area, amin, amax
-    if abs(area - blob_area) > 0.15 * area + 2.0 * math.sqrt(area):
+    if blob_area - area > 0.15 * area + 2.0 * math.sqrt(area) or \
+            area - blob_area > 0.3 * area + 2.0 * math.sqrt(area):
         return AREA_MISMATCH, area, amin, amax
     return PLAUSIBLE, area, amin, amax
+
+
+TUKEY_C = 4.685        # Tukey biweight constant, in robust sigmas
+INLIER_SIGMAS = 3.0    # a point within this many robust sigmas of its line is an inlier
+MIN_SIGMA_PX = 0.05    # least robust residual scale (px)
+MIN_INLIER_SHARE = 0.5  # a line with fewer inliers is not measured (hidden, or not an edge)
+FAST_SIGMAS, FAST_PX = 5.0, 0.6  # no point further than these from the Huber line: it stands
+
+
+@njit(inline="always")
+def _tls(points: np.ndarray, w: np.ndarray) -> tuple[float, float, float]:
+    sw = mx = my = 0.0
+    for i in range(points.shape[0]):
+        sw += w[i]
+        mx += w[i] * points[i, 0]
+        my += w[i] * points[i, 1]
+    if sw <= 0:
+        return 0.0, 1.0, 0.0
+    mx /= sw
+    my /= sw
+    sxx = syy = sxy = 0.0
+    for i in range(points.shape[0]):
+        ex, ey = points[i, 0] - mx, points[i, 1] - my
+        sxx += w[i] * ex * ex
+        syy += w[i] * ey * ey
+        sxy += w[i] * ex * ey
+    theta = 0.5 * math.atan2(2.0 * sxy, sxx - syy)
+    nx, ny = -math.sin(theta), math.cos(theta)
+    return nx, ny, nx * mx + ny * my
+
+
+@njit(inline="always")
+def _trimmed_cost(points: np.ndarray, nx: float, ny: float, d: float, r: np.ndarray) -> float:
+    """Sum of the smallest 60 % squared residuals (a least-trimmed-squares score)."""
+    n = points.shape[0]
+    for i in range(n):
+        r[i] = (nx * points[i, 0] + ny * points[i, 1] - d) ** 2
+    s = np.sort(r)
+    k = max(int(0.6 * n), 2)
+    return s[:k].sum()
+
+
+@njit()
+def robust_line(points: np.ndarray) -> tuple[float, float, float, float, int, float, float,
+                                              float, float, int, int]:
+    """A line through points (N >= 4, 2) px that ignores a minority of them wholesale (an
+    occluder's boundary, a highlight's halo, a stretch of marker-coloured surround): the
+    better (by trimmed squares) of the Huber fit and the fit to the middle half, refined by
+    Tukey's biweight.
+
+    Returns (nx, ny, d, robust sigma px, inliers, inlier centroid x, y, spread along the line
+    Σ t² px², inlier sum of squared residuals, outliers on the normal's side, outliers on
+    the other side).
+    """
+    n = points.shape[0]
+    r = np.empty(n)
+    w = np.ones(n)
+    nx, ny, d, _, _ = huber_line(points)
+    for i in range(n):
+        r[i] = abs(nx * points[i, 0] + ny * points[i, 1] - d)
+    top = r.max()
+    if top <= FAST_PX and top <= max(FAST_SIGMAS * max(1.4826 * np.median(r), MIN_SIGMA_PX),
+                                     0.25):
+        return _line_stats(points, nx, ny, d)  # no gross outliers: the Huber fit stands
+    best = _trimmed_cost(points, nx, ny, d, r)
+    q = n // 4
+    for i in range(n):
+        w[i] = 1.0 if q <= i < n - q else 0.0
+    mx, my, md = _tls(points, w)
+    cost = _trimmed_cost(points, mx, my, md, r)
+    if cost < best:
+        nx, ny, d = mx, my, md
+    sigma = 1.0
+    for it in range(8):
+        for i in range(n):
+            r[i] = nx * points[i, 0] + ny * points[i, 1] - d
+        if it < 2:
+            sigma = max(1.4826 * np.median(np.abs(r)), MIN_SIGMA_PX)
+        c = TUKEY_C * sigma
+        for i in range(n):
+            a = r[i] / c
+            w[i] = (1.0 - a * a) ** 2 if abs(a) < 1.0 else 0.0
+        onx, ony = nx, ny
+        nx, ny, d = _tls(points, w)
+        if abs(onx - nx) + abs(ony - ny) < 1e-10 and it > 2:
+            break
+    return _line_stats(points, nx, ny, d)
+
+
+@njit(inline="always")
+def _line_stats(points: np.ndarray, nx: float, ny: float, d: float
+                ) -> tuple[float, float, float, float, int, float, float, float, float, int,
+                           int]:
+    """``robust_line``'s result for the line (nx, ny, d)."""
+    n = points.shape[0]
+    r = np.empty(n)
+    for i in range(n):
+        r[i] = nx * points[i, 0] + ny * points[i, 1] - d
+    sigma = max(1.4826 * np.median(np.abs(r)), MIN_SIGMA_PX)
+    band = max(INLIER_SIGMAS * sigma, 0.25)
+    count = 0
+    cx = cy = sq = 0.0
+    pos = neg = 0
+    for i in range(n):
+        if abs(r[i]) <= band:
+            count += 1
+            cx += points[i, 0]
+            cy += points[i, 1]
+            sq += r[i] * r[i]
+        elif r[i] > 0:
+            pos += 1
+        else:
+            neg += 1
+    if count == 0:
+        return nx, ny, d, sigma, 0, 0.0, 0.0, 0.0, 0.0, pos, neg
+    cx /= count
+    cy /= count
+    spread = 0.0
+    for i in range(n):
+        if abs(r[i]) <= band:
+            t = -ny * (points[i, 0] - cx) + nx * (points[i, 1] - cy)
+            spread += t * t
+    rms = math.sqrt(sq / count)
+    return nx, ny, d, max(rms, MIN_SIGMA_PX), count, cx, cy, spread, sq, pos, neg
+
+
+@njit()
+def robust_split(points: np.ndarray, k: int, a: np.ndarray, b: np.ndarray, band: float) -> int:
+    """The split index (points [:k] on line a, [k:] on line b) with the least truncated
+    squared residual (min(r², band²)): the vertex's place once both lines are known."""
+    n = points.shape[0]
+    pre = np.zeros(n + 1)
+    post = np.zeros(n + 1)
+    b2 = band * band
+    for i in range(n):
+        ra = a[0] * points[i, 0] + a[1] * points[i, 1] - a[2]
+        pre[i + 1] = pre[i] + min(ra * ra, b2)
+    for i in range(n - 1, -1, -1):
+        rb = b[0] * points[i, 0] + b[1] * points[i, 1] - b[2]
+        post[i] = post[i + 1] + min(rb * rb, b2)
+    best, best_k = np.inf, k
+    for j in range(n + 1):
+        if pre[j] + post[j] < best:
+            best, best_k = pre[j] + post[j], j
+    return best_k
+
+
+HIDDEN_EDGE, OUTSIDE_POINTS = 3, 4  # further fit statuses
+
+
+@njit()
+def fit_rhombus_robust(u: np.ndarray, d: np.ndarray, min_points: int, drop: int,
+                       centre_x: float, centre_y: float, max_outside_share: float,
+                       cov_scale: float = 1.0, cov_floor: float = 0.0
+                       ) -> tuple[int, np.ndarray, float, np.ndarray, float]:
+    """``fit_rhombus`` that survives a hidden vertex or part of an edge: each of the four
+    lines by ``robust_line``, the splits moved to where the two lines meet, and the per-vertex
+    covariance of the intersections. (centre_x, centre_y): a point inside the marker.
+
+    Returns (status, vertices (4, 2), RMS inlier residual px, vertex covariances (4, 2, 2)
+    px², the largest vertex sigma px). The covariance treats the points as independent with
+    their line's RMS residual, times ``cov_scale``, plus ``cov_floor`` px² on the diagonal.
+    Status FIT_OK, TOO_FEW_POINTS, PARALLEL, HIDDEN_EDGE (a line with too
+    few inliers), OUTSIDE_POINTS (more than ``max_outside_share`` of a line's points beyond
+    it, outside the quadrilateral: it is not the whole marker's edge).
+    """
+    v = np.zeros((4, 2))
+    cov = np.zeros((4, 2, 2))
+    lines = np.zeros((4, 11))
+    for s in range(2):
+        pts = u if s == 0 else d
+        k = best_split(pts, min_points)
+        for rnd in range(3):
+            for side in range(2):
+                part = pts[:max(k - drop, 0)] if side == 0 else pts[k + drop:]
+                if part.shape[0] < min_points:
+                    return TOO_FEW_POINTS, v, 0.0, cov, 0.0
+                nx, ny, dd, sg, cnt, cx, cy, spread, sq, pos, neg = robust_line(part)
+                if nx * centre_x + ny * centre_y - dd > 0:  # orient the normal outward
+                    nx, ny, dd, pos, neg = -nx, -ny, -dd, neg, pos
+                row = lines[2 * s + side]
+                row[0], row[1], row[2], row[3], row[4] = nx, ny, dd, sg, cnt
+                row[5], row[6], row[7], row[8] = cx, cy, spread, sq
+                row[9], row[10] = pos, part.shape[0]
+            if rnd == 2 or (lines[2 * s, 9] == 0 and lines[2 * s + 1, 9] == 0 and
+                            lines[2 * s, 4] == lines[2 * s, 10] and
+                            lines[2 * s + 1, 4] == lines[2 * s + 1, 10]):
+                break  # (every point an inlier: the split stands)
+            band = INLIER_SIGMAS * max(lines[2 * s, 3], lines[2 * s + 1, 3])
+            k2 = robust_split(pts, k, lines[2 * s], lines[2 * s + 1], max(band, 0.5))
+            k2 = min(max(k2, min_points + drop), pts.shape[0] - min_points - drop)
+            if k2 == k:
+                break
+            k = k2
+    sq_all, count = 0.0, 0
+    for i in range(4):
+        if lines[i, 4] < min_points or lines[i, 4] < MIN_INLIER_SHARE * lines[i, 10]:
+            return HIDDEN_EDGE, v, 0.0, cov, 0.0
+        if lines[i, 9] > max_outside_share * lines[i, 10]:
+            return OUTSIDE_POINTS, v, 0.0, cov, 0.0
+        sq_all += lines[i, 8]
+        count += int(lines[i, 4])
+    sigma_max = 0.0
+    for vi in range(4):  # left = 0 x 2, top = 0 x 1, right = 1 x 3, bottom = 2 x 3
+        i = 0 if vi < 2 else (1 if vi == 2 else 2)
+        j = 2 if vi == 0 else (1 if vi == 1 else 3)
+        a, b = lines[i], lines[j]
+        det = a[0] * b[1] - a[1] * b[0]
+        if abs(det) < 1e-9:
+            return PARALLEL, v, 0.0, cov, 0.0
+        x = (a[2] * b[1] - b[2] * a[1]) / det
+        y = (a[0] * b[2] - b[0] * a[2]) / det
+        v[vi, 0], v[vi, 1] = x, y
+        # N^-1 = [[b1, -a1], [-b0, a0]] / det; each line's offset (var sigma²/n) and its
+        # angle about its centroid (var sigma²/spread, lever: the vertex's distance along it)
+        sa = -a[1] * (x - a[5]) + a[0] * (y - a[6])
+        sb = -b[1] * (x - b[5]) + b[0] * (y - b[6])
+        va = a[3] ** 2 * (1.0 / a[4] + sa * sa / max(a[7], 1e-9))
+        vb = b[3] ** 2 * (1.0 / b[4] + sb * sb / max(b[7], 1e-9))
+        j00, j01 = b[1] / det, -a[1] / det
+        j10, j11 = -b[0] / det, a[0] / det
+        cxx = cov_scale * (j00 * j00 * va + j01 * j01 * vb) + cov_floor
+        cxy = cov_scale * (j00 * j10 * va + j01 * j11 * vb)
+        cyy = cov_scale * (j10 * j10 * va + j11 * j11 * vb) + cov_floor
+        cov[vi, 0, 0], cov[vi, 0, 1], cov[vi, 1, 0], cov[vi, 1, 1] = cxx, cxy, cxy, cyy
+        top = 0.5 * (cxx + cyy) + math.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
+        sigma_max = max(sigma_max, math.sqrt(top))
+    return FIT_OK, v, math.sqrt(sq_all / max(count, 1)), cov, sigma_max
+
+
+@njit()
+def weak_view(v: np.ndarray, diagonal_ratio: float) -> tuple[float, float, float, float]:
+    """The view under which the quadrilateral v (left, top, right, bottom) px is the marker
+    (a rhombus whose horizontal diagonal is ``diagonal_ratio`` times its vertical one), by
+    weak perspective: the affine map A from the marker's plane (vertical half-diagonal = 1)
+    to the image, A = s Q P (Q a rotation: the roll; P symmetric with eigenvalues 1 and
+    cos tilt). Returns (tilt off the normal, |roll|, the vertical diagonal's foreshortening
+    as an angle (turning about a horizontal axis), scale px) in degrees.
+    """
+    a00 = (v[2, 0] - v[0, 0]) / (2.0 * diagonal_ratio)
+    a10 = (v[2, 1] - v[0, 1]) / (2.0 * diagonal_ratio)
+    a01 = (v[3, 0] - v[1, 0]) / 2.0
+    a11 = (v[3, 1] - v[1, 1]) / 2.0
+    # singular values of a 2 x 2 matrix, and the rotation of its polar decomposition
+    e = 0.5 * (a00 + a11)
+    f = 0.5 * (a00 - a11)
+    g = 0.5 * (a10 + a01)
+    h = 0.5 * (a10 - a01)
+    q = math.hypot(e, h)
+    r = math.hypot(f, g)
+    s1, s2 = q + r, q - r
+    if s2 <= 0 or s1 <= 0:
+        return 90.0, 180.0, 90.0, 0.0
+    tilt = math.degrees(math.acos(min(s2 / s1, 1.0)))
+    roll = abs(math.degrees(math.atan2(h, e)))
+    vertical = math.hypot(a01, a11) / s1
+    pitch = math.degrees(math.acos(min(vertical, 1.0)))
+    return tilt, roll, pitch, s1
+
+
+@njit()
+def finite_points(u: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """U and D points without the unmeasured ones (NaN rows), and their centre (x, y)."""
+    out = []
+    cx = cy = 0.0
+    for pts in (u, d):
+        keep = np.isfinite(pts[:, 1])
+        kept = pts[keep]
+        if kept.shape[0] > 0:
+            cx += 0.5 * kept[:, 0].mean()
+            cy += 0.5 * kept[:, 1].mean()
+        out.append(kept)
+    return out[0], out[1], cx, cy

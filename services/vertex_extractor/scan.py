@@ -95,17 +95,19 @@ def find_seed(img: np.ndarray, sx: int, sy: int, radius: int, lut: np.ndarray, m
 @njit()
 def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
          lut: np.ndarray, m: np.ndarray, edge_mode: int = 1, outer: int = -1
-         ) -> tuple[int, int, int, float, np.ndarray, np.ndarray]:
+         ) -> tuple[int, int, int, float, np.ndarray, np.ndarray, np.ndarray]:
     """Walk the marker's columns from the marker pixel (sx, sy) and measure its edges.
 
     Returns (status, blob area px, usable columns, contrast grey levels, U points (n, 2),
-    D points (n, 2)), points in pixels (x, y) on columns Δx = ``dx`` apart, over the widest
+    D points (n, 2), the walked blob's box x0, x1, y0, y1 inclusive), points in pixels
+    (x, y) on columns Δx = ``dx`` apart, over the widest
     column and its neighbours whose run is at least ``min_len`` px long (Table 1's stop).
     Status: OK, BORDER (the marker reaches the image border or the edge windows would),
     LOW_CONTRAST (less than MIN_CONTRAST between inside and outside, linear x 255).
     """
     H, W = img.shape[0], img.shape[1]
     empty = np.empty((0, 2))
+    box = np.zeros(4, np.int64)
     top = np.full(W, -1, np.int64)
     bottom = np.full(W, -1, np.int64)
     top[sx] = _run_up(img, sx, sy, lut, m)
@@ -127,13 +129,16 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     area = 0
     widest = sx
     touches = lo == 0 or hi == W
+    box[0], box[1], box[2], box[3] = lo, hi - 1, H, 0
     for x in range(lo, hi):
         area += bottom[x] - top[x] + 1
+        box[2] = min(box[2], top[x])
+        box[3] = max(box[3], bottom[x])
         touches = touches or top[x] == 0 or bottom[x] == H - 1
         if bottom[x] - top[x] > bottom[widest] - top[widest]:
             widest = x
     if touches:
-        return BORDER, area, 0, 0.0, empty, empty
+        return BORDER, area, 0, 0.0, empty, empty, box
     a = widest  # Table 1: from the widest column right and left until a run < MIN_LEN
     while a > lo and bottom[a - 1] - top[a - 1] + 1 >= min_len:
         a -= 1
@@ -141,28 +146,34 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     while z < hi and bottom[z] - top[z] + 1 >= min_len:
         z += 1
     if bottom[widest] - top[widest] + 1 < min_len:
-        return OK, area, 0, 0.0, empty, empty
+        return OK, area, 0, 0.0, empty, empty, box
     n = (z - a + dx - 1) // dx
     if outer < 0:
         outer = window
     gap = max(window, outer) + 1 + LOCAL_ROWS
     inside = np.zeros(3)
+    counted = 0
     for i in range(n):
         x = a + i * dx
         if top[x] < gap or bottom[x] + gap > H - 1:
-            return BORDER, area, n, 0.0, empty, empty
+            return BORDER, area, n, 0.0, empty, empty, box
         y = (top[x] + bottom[x]) // 2
-        for c in range(3):
-            inside[c] += lut[img[y, x, c]]
+        if is_marker(img, y, x, lut, m):  # not an occluder across the run
+            counted += 1
+            for c in range(3):
+                inside[c] += lut[img[y, x, c]]
+    if counted == 0:
+        return LOW_CONTRAST, area, n, 0.0, empty, empty, box
     w = chroma_direction(inside[0], inside[1], inside[2])  # the marker's own chroma
-    s_in, s_out = _levels(img, a, n, dx, top, bottom, gap, lut, w)
+    s_in, s_out = _levels(img, a, n, dx, top, bottom, gap, lut, w, m)
     contrast = s_in - s_out
     if contrast < MIN_CONTRAST:
-        return LOW_CONTRAST, area, n, contrast, empty, empty
+        return LOW_CONTRAST, area, n, contrast, empty, empty, box
     u = np.empty((n, 2))
     d = np.empty((n, 2))
-    inside /= n
     wl = np.empty(3)  # the score direction at one edge point
+    exts = np.zeros((2, n), np.int64)
+    colour = np.zeros((2, n + 1, 4))  # prefix sums of the local inside colour B, G, R, count
     for i in range(n):
         x = a + i * dx
         u[i, 0] = x
@@ -171,61 +182,136 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
         # as the border and half the chord allow
         xl, xr = max(x - 1, lo), min(x + 1, hi - 1)
         room = (bottom[x] - top[x] + 1) // 2 - window
+        mid = (top[x] + bottom[x]) // 2
         for side in range(2):
             run = top if side == 0 else bottom
             slope = abs(run[xr] - run[xl]) / max(xr - xl, 1)
             end = top[x] if side == 0 else bottom[x]
             border = end - gap if side == 0 else H - 1 - gap - end
             ext = max(min(int(STEEP * slope + 0.5), 2 * window, room, border), 0)
+            exts[side, i] = ext
+            out = -1 if side == 0 else 1
+            for c in range(4):
+                colour[side, i + 1, c] = colour[side, i, c]
+            for k in range(LOCAL_ROWS):
+                r = end - out * (window + ext + 1 + k)
+                if (r - mid) * out < 0:  # past the middle row: stay on this edge's half
+                    r = mid
+                if is_marker(img, r, x, lut, m):  # not an occluder or a clipped highlight
+                    for c in range(3):
+                        colour[side, i + 1, c] += lut[img[r, x, c]]
+                    colour[side, i + 1, 3] += 1.0
+    local = np.empty(3)
+    for i in range(n):
+        x = a + i * dx
+        i0, i1 = max(i - INSIDE_SPAN, 0), min(i + INSIDE_SPAN + 1, n)
+        for side in range(2):
+            count = colour[side, i1, 3] - colour[side, i0, 3]
+            total = colour[side, n, 3]
+            if count < LOCAL_ROWS:
+                if side == 0:
+                    u[i, 1] = np.nan
+                else:
+                    d[i, 1] = np.nan
+                continue
+            # the inside level along this edge, where it differs from the whole edge's by
+            # more than noise (a shadow, a highlight); the whole edge's (less noisy) elsewhere
+            near = 0.0
+            far = 0.0
+            before = 0.0
+            after = 0.0
+            nb = colour[side, i + 1, 3] - colour[side, i0, 3]
+            na = colour[side, i1, 3] - colour[side, i, 3]
+            for c in range(3):
+                near += w[c] * (colour[side, i1, c] - colour[side, i0, c]) / count
+                far += w[c] * colour[side, n, c] / total
+                before += w[c] * (colour[side, i + 1, c] - colour[side, i0, c]) / max(nb, 1.0)
+                after += w[c] * (colour[side, i1, c] - colour[side, i, c]) / max(na, 1.0)
+            if nb >= LOCAL_ROWS and na >= LOCAL_ROWS and \
+                    abs(before - after) > LEVEL_STEP * max(before, after):
+                # a shadow's boundary or a highlight crosses the edge here: the inside level
+                # changes within the window's reach
+                if side == 0:
+                    u[i, 1] = np.nan
+                else:
+                    d[i, 1] = np.nan
+                continue
+            t = min(max((abs(near - far) / max(far, 1e-9) - 0.08) / 0.08, 0.0), 1.0)
+            for c in range(3):
+                local[c] = (t * (colour[side, i1, c] - colour[side, i0, c]) / count
+                            + (1.0 - t) * colour[side, n, c] / total)
+            ext = exts[side, i]
             if side == 0:
-                u[i, 1] = _edge(img, x, end, -1, window + ext, outer + ext, s_in, s_out,
-                                edge_mode, lut, w, inside, wl)
+                u[i, 1] = _edge(img, x, top[x], -1, window + ext, outer + ext, s_in, s_out,
+                                edge_mode, lut, w, wl, local)
             else:
-                d[i, 1] = _edge(img, x, end, 1, window + ext, outer + ext, s_in, s_out,
-                                edge_mode, lut, w, inside, wl)
-    return OK, area, n, contrast, u, d
+                d[i, 1] = _edge(img, x, bottom[x], 1, window + ext, outer + ext, s_in, s_out,
+                                edge_mode, lut, w, wl, local)
+    return OK, area, n, contrast, u, d, box
 
 
 @njit(inline="always")
-def _levels(img, a, n, dx, top, bottom, gap, lut, w):  # type: ignore[no-untyped-def]
-    """(inside, outside) score levels of the whole marker: the mean at the columns' centres
-    and the median just beyond the edge windows."""
-    s_in = 0.0
+def _levels(img, a, n, dx, top, bottom, gap, lut, w, m):  # type: ignore[no-untyped-def]
+    """(inside, outside) score levels of the whole marker: the median at the columns' centres
+    (marker pixels only) and the median just beyond the edge windows."""
+    inside = np.empty(n)
+    k = 0
     outside = np.empty(2 * n)
     for i in range(n):
         x = a + i * dx
-        s_in += score(img, (top[x] + bottom[x]) // 2, x, lut, w)
+        y = (top[x] + bottom[x]) // 2
+        if is_marker(img, y, x, lut, m):
+            inside[k] = score(img, y, x, lut, w)
+            k += 1
         outside[2 * i] = score(img, top[x] - gap, x, lut, w)
         outside[2 * i + 1] = score(img, bottom[x] + gap, x, lut, w)
-    return s_in / n, np.median(outside)
+    return np.median(inside[:k]), np.median(outside)
 
 
 LOCAL_ROWS = 3  # rows beyond the window that give the local background level
+LEVEL_STEP = 0.2  # a change of the inside level along an edge that drops its points there
+FLAT_TOLERANCE = 0.12  # how much brighter than the inside level the window's inner rows may be
+INSIDE_SPAN = 6  # columns each side whose inside colour gives an edge point's inside level
 STEEP = 1.5     # extra window rows per unit of edge slope (rows per column)
 GLOBAL, LOCAL, CROSSING, ORTHOGONAL = 0, 1, 2, 3  # edge methods (ExtractorParams.edge)
 
 
 @njit(inline="always")
-def _edge(img, x, end, out, window, outer, s_in, s_out, mode, lut, w, colour_in,  # type: ignore[no-untyped-def]
-          wl):
+def _edge(img, x, end, out, window, outer, s_in, s_out, mode, lut, w, wl,  # type: ignore[no-untyped-def]
+          local):
     """Sub-pixel row of the edge beyond ``end`` (the run's last marker row in column x);
-    ``out`` = -1 for the upper edge (background above), +1 for the lower.
+    ``out`` = -1 for the upper edge (background above), +1 for the lower; NaN when the edge
+    cannot be measured here (no contrast between the local levels).
 
-    GLOBAL: the coverage sum over ``window`` rows each side, with one inside and one outside
-    level for the whole marker (exact on area-sampled images on a uniform background).
-    LOCAL: the same sum with the outside level measured just beyond the window in this
-    column (median of ``LOCAL_ROWS`` rows): a textured surround is not one level.
+    Both levels are local: the outside level just beyond the window (``LOCAL_ROWS`` rows),
+    the inside level from ``local``, the marker's linear colour (B, G, R) just inside the
+    window: averaged over the neighbouring columns (``INSIDE_SPAN`` each side) where that
+    differs from the whole edge's mean by more than noise, so that a shadow's boundary or a
+    highlight elsewhere on the marker moves no edge.
+
+    GLOBAL: the coverage sum over ``window`` rows each side, with the whole marker's inside and
+    outside levels (exact on area-sampled images on a uniform background, in uniform light).
+    LOCAL: the same sum between the local levels.
     CROSSING: where the profile crosses halfway between the local levels (linear
     interpolation), which only reads the pixels at the edge.
     ORTHOGONAL: the LOCAL sum along a direction orthogonal to grey and to the local
     background's own chroma (measured beyond the window), so that the surround's brightness
     and saturation changes score nothing; LOCAL where the background is grey or its chroma
-    leaves too little contrast. ``colour_in``: the marker's mean linear colour (B, G, R);
-    ``wl``: scratch for the local direction.
+    leaves too little contrast. ``wl``: scratch for the local direction.
     """
     wl[0], wl[1], wl[2] = w[0], w[1], w[2]
+    ib, ig, ir = local[0], local[1], local[2]
+    base = end + out * (outer + 1)
+    hi_w = w[0] * ib + w[1] * ig + w[2] * ir
+    if mode == GLOBAL:
+        lo, hi = s_out, s_in
+    else:
+        v0 = score(img, base, x, lut, w)
+        v1 = score(img, base + out, x, lut, w)
+        v2 = score(img, base + 2 * out, x, lut, w)
+        lo = max(min(v0, v1), min(max(v0, v1), v2))  # median of three
+        hi = hi_w
     if mode == ORTHOGONAL:
-        base = end + out * (outer + 1)
         pb = pg = pr = 0.0
         for k in range(LOCAL_ROWS):
             pb += lut[img[base + k * out, x, 0]]
@@ -235,31 +321,35 @@ def _edge(img, x, end, out, window, outer, s_in, s_out, mode, lut, w, colour_in,
         pb, pg, pr = pb - mean, pg - mean, pr - mean  # the surround's chroma (x LOCAL_ROWS)
         cb, cg, cr = pg - pr, pr - pb, pb - pg        # (1, 1, 1) x chroma: orthogonal to both
         norm = np.sqrt(cb * cb + cg * cg + cr * cr)
-        if norm > 0.05 * LOCAL_ROWS * (s_in - s_out):  # a coloured surround
+        local = hi_w - lo
+        if local > 0 and norm > 0.05 * LOCAL_ROWS * local:  # a coloured surround
             cb, cg, cr = cb / norm, cg / norm, cr / norm
-            hi_o = cb * colour_in[0] + cg * colour_in[1] + cr * colour_in[2]
+            hi_o = cb * ib + cg * ig + cr * ir
             if hi_o < 0:
                 cb, cg, cr, hi_o = -cb, -cg, -cr, -hi_o
-            if hi_o > 0.4 * (s_in - s_out):
+            if hi_o > 0.4 * local:
                 wl[0], wl[1], wl[2] = cb, cg, cr
                 w = wl
-                s_in = hi_o
-    if mode == GLOBAL:
-        lo, hi = s_out, s_in
-    else:
-        base = end + out * (outer + 1)
-        v0 = score(img, base, x, lut, w)
-        v1 = score(img, base + out, x, lut, w)
-        v2 = score(img, base + 2 * out, x, lut, w)
-        lo = max(min(v0, v1), min(max(v0, v1), v2))  # median of three
-        hi = s_in
+                hi = hi_o
+                lo = 0.0
+                v0 = score(img, base, x, lut, w)
+                v1 = score(img, base + out, x, lut, w)
+                v2 = score(img, base + 2 * out, x, lut, w)
+                lo = max(min(v0, v1), min(max(v0, v1), v2))
     span = hi - lo
-    if span < 0.25 * (s_in - s_out) and mode != ORTHOGONAL:
-        lo, hi = s_out, s_in
-        span = hi - lo
-    if span <= 1e-9:
-        return end + out * 0.5
+    if span < 0.15 * (s_in - s_out) or span <= 1e-9:
+        return np.nan  # no edge to measure here (a highlight, an occluder, no light)
     inv = 1.0 / span
+    # the window's inner rows must not be brighter than the inside level: a shadow's boundary
+    # running along the edge, inside the window, would move the edge outward (blur only makes
+    # them darker)
+    k0 = max(2, window // 2 + 1)
+    if window - k0 >= 1:
+        acc_in = 0.0
+        for k in range(k0, window):
+            acc_in += score(img, end - out * k, x, lut, w)
+        if (acc_in / (window - k0) - lo) * inv > 1.0 + FLAT_TOLERANCE:
+            return np.nan
     if mode == CROSSING:
         # walk outward from the run's end to the first row below half coverage
         y = end

@@ -39,10 +39,12 @@ def to_message(det: Detection, seq: int, stamp_ns: int, width: int, height: int
                ) -> MarkerVertices:
     verts = (tuple((float(u), float(v)) for u, v in det.vertices_px)
              if det.found and det.vertices_px is not None else None)
+    cov = (tuple(tuple(tuple(float(x) for x in row) for row in c) for c in det.vertices_cov_px2)
+           if verts is not None and det.vertices_cov_px2 is not None else None)
     return MarkerVertices(seq=seq, stamp_ns=stamp_ns, found=det.found,
                           vertices_px=verts, area_ratio=det.area_ratio,  # type: ignore[arg-type]
                           residual_px=det.residual_px, reason=det.reason, width=width,
-                          height=height)
+                          height=height, vertices_cov_px2=cov)  # type: ignore[arg-type]
 
 
 async def main(ctx: ServiceContext, config: Settings) -> None:
@@ -50,7 +52,8 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
     params = config.part(ExtractorParams)
     frames = bus.subscribe_frames(latest=True)
     await asyncio.to_thread(warm_up, params)  # compiled kernels ready before the first frame
-    extractor = RhombusExtractor(params)
+    g = ctx.geometry
+    extractor = RhombusExtractor(params, g.marker_width_m / g.marker_height_m)
     async for frame in frames:
         h = frame.header
         image = frame.image
