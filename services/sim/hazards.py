@@ -38,7 +38,9 @@ class Hazards(BaseModel):
     shadow_offset: float = Field(default=0.0, ge=-1.5, le=1.5,
                                  description="the shadow edge's distance from the marker "
                                              "centre, in half-diagonals")
-    occluder: Literal["none", "limb", "bar"] = "none"
+    occluder: Literal["none", "limb", "bar"] = Field(
+        default="none", description="a limb (skin, round ends) or a bar (dark plastic) in front "
+        "of the marker")
     occluder_from: tuple[float, float] = Field(
         default=(1.6, -1.2), description="where the occluder comes from (marker frame)")
     occluder_to: tuple[float, float] = Field(
@@ -47,11 +49,13 @@ class Hazards(BaseModel):
                                   description="thickness, in vertical half-diagonals")
     specular_gain: float = Field(default=0.0, ge=0.0, le=20.0,
                                  description="peak of the print's highlight, x white light")
-    specular_at: tuple[float, float] = (0.3, -0.3)
+    specular_at: tuple[float, float] = Field(
+        default=(0.3, -0.3), description="the highlight's centre (marker frame)")
     specular_radius: float = Field(default=0.3, gt=0.0, le=3.0,
                                    description="1/e radius, in vertical half-diagonals")
-    distractors: tuple[DistractorKind, ...] = ()
-    distractor_seed: int = 0
+    distractors: tuple[DistractorKind, ...] = Field(
+        default=(), description="magenta things in the room: cards, shirts, cups, rhombi")
+    distractor_seed: int = Field(default=0, description="where the distractors stand")
     defocus_px: float = Field(default=0.0, ge=0.0, le=12.0, description="blur disc radius")
     rolling_shutter_px: float = Field(
         default=0.0, ge=-80.0, le=80.0,
