@@ -14,7 +14,8 @@ from services.pose_estimator.service import Settings as PoseSettings
 from services.runtime import registry
 from services.runtime.config import ConfigError, load_deployment, parse_deployment
 from services.runtime.launcher import run_deployment
-from tests.conftest import run_cli, spawn_cli
+from services.tools.cli import build_parser
+from tests.conftest import run_cli, spawn_cli, wait_for, wait_matched_key
 from tests.helpers import crashy
 
 
@@ -26,18 +27,25 @@ from tests.helpers import crashy
     ("colour = 'blue'\n", "colour: unknown key"),
     ("[services.sim\n", "not valid TOML"),
 ])
-def test_bad_deployment_file_exits_2_naming_file_and_key(tmp_path: Path, text, message):
+def test_bad_deployment_file_exits_2_naming_file_and_key(tmp_path: Path, capsys, text, message):
     path = tmp_path / "bad.toml"
     path.write_text(text)
     with pytest.raises(ConfigError, match=r"bad\.toml"):
         load_deployment(path)
+    args = build_parser().parse_args(["run", str(path)])  # `shepherd run`, in this process
+    assert args.func(args) == 2
+    err = capsys.readouterr().err
+    assert str(path) in err and message in err, err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_bad_and_missing_files_exit_2_from_the_real_cli(tmp_path: Path):
+    path = tmp_path / "bad.toml"
+    path.write_text("[services.sim]\nfsp = 3\n")
     out = run_cli("run", str(path))
     assert out.returncode == 2
-    assert str(path) in out.stderr and message in out.stderr, out.stderr
+    assert f"{path}" in out.stderr and "services.sim.fsp: unknown key" in out.stderr, out.stderr
     assert len(out.stderr.strip().splitlines()) == 1
-
-
-def test_missing_file_exits_2(tmp_path: Path):
     out = run_cli("run", str(tmp_path / "nope.toml"))
     assert out.returncode == 2 and "cannot read deployment file" in out.stderr
 
@@ -127,27 +135,34 @@ def test_killed_service_process_loses_its_token_and_is_restarted(tmp_path: Path,
     assert "restarting" in err
 
 
-def test_sigterm_stops_everything_within_2s_and_sends_stop(tmp_path: Path, router, make_bus):
+def test_sigterm_stops_everything_within_2s_and_sends_stop(tmp_path: Path, router, make_bus,
+                                                           sessions):
     path = tmp_path / "dep.toml"
     path.write_text(f'[zenoh]\nconnect = ["{router}"]\nmulticast_scouting = false\n'
                     '[services.ir_transmitter]\nbackend = "sim"\n'
                     '[services.mission_controller]\n')
     bus = make_bus("observer")
     s = bus.session
+    launcher_side = sessions()  # sees our subscriber as the launcher's session does
     launcher = spawn_cli("run", str(path))
     try:
         assert _wait(lambda: {"ir_transmitter", "mission_controller"} <= _alive(s), 20)
 
         async def observe() -> list[IrCommand]:
             sub = bus.subscribe(SIM_IR, IrCommand, latest=False, queue=64)
-            await asyncio.sleep(0.3)
+            await wait_matched_key(launcher_side, bus.keys.key(SIM_IR))
             t0 = time.monotonic()
             launcher.send_signal(signal.SIGTERM)
             await asyncio.to_thread(launcher.wait, 5)
             elapsed = time.monotonic() - t0
             assert elapsed < 2.0, f"took {elapsed:.2f} s to stop"
-            await asyncio.sleep(0.3)
-            return [sub.get_nowait() for _ in range(sub.pending())]
+            got: list[IrCommand] = []
+
+            def stopped() -> bool:  # the launcher's last words may still be on their way
+                got.extend(iter(sub.get_nowait, None))
+                return bool(got) and got[-1].command.value == "stop"
+            await wait_for(stopped, "a stop among the commands after SIGTERM", timeout=10)
+            return got
 
         got = asyncio.run(observe())
         assert got and got[-1].command.value == "stop"
