@@ -16,7 +16,9 @@ from services.runtime.frames import encode_frame
 from tests.conftest import ROOT, spawn_cli, wait_alive_async
 from tests.helpers.fake_frames import render_marker
 
-pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
+# end-to-end: left out of `make test-fast`; in real time, so `make test` runs it on the
+# worker of the other real-time tests, one after another
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("realtime")]
 
 LOAD_S = float(os.environ.get("SHEPHERD_LOAD_S", "60"))
 

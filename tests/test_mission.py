@@ -9,7 +9,9 @@ import pytest
 
 from tests.conftest import ROOT, endpoint, spawn_cli
 
-pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
+# end-to-end: left out of `make test-fast`; in real time, so `make test` runs it on the
+# worker of the other real-time tests, one after another
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("realtime")]
 
 
 def _final_error_cm(out: str) -> float:

@@ -46,6 +46,7 @@ def _controller_host(tmp_path: Path, router: str) -> subprocess.Popen[str]:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("realtime")  # a deadline in real time: beside no other
 @pytest.mark.parametrize("loss", ["hangs", "dies"])
 def test_a_lost_controller_host_ends_in_stop_on_the_serial_port_within_1s(
         tmp_path: Path, router: str, make_bus, loss: str):
@@ -206,6 +207,7 @@ def test_three_jpeg_bombs_cost_little_memory_and_poses_keep_flowing(router: str,
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("realtime")  # a deadline in real time: beside no other
 @pytest.mark.parametrize("skew_s", [-0.5, 0.5])
 def test_a_clock_skew_between_hosts_neither_freezes_nor_hides_a_stale_pose(
         router: str, make_bus, skew_s: float):

@@ -6,7 +6,9 @@ import pytest
 
 from tests.conftest import endpoint, spawn_cli
 
-pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
+# end-to-end: left out of `make test-fast`; in real time, so `make test` runs it on the
+# worker of the other real-time tests, one after another
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("realtime")]
 
 
 def test_soak_mode_goes_back_and_forth_and_reports_memory():
