@@ -128,10 +128,12 @@ async def wait_matched(bus: Bus, suffix: str, timeout: float = 30.0) -> None:
     await wait_matched_key(bus.session, bus.keys.key(suffix), timeout)
 
 
-async def wait_matched_key(session: zenoh.Session, key_expr: str, timeout: float = 30.0
-                           ) -> None:
-    """:func:`wait_matched` for any key expression (e.g. a ROS 2 topic's data key)."""
-    publisher = session.declare_publisher(key_expr)
+async def wait_matched_key(session: zenoh.Session, key_expr: str, timeout: float = 30.0,
+                           remote_only: bool = False) -> None:
+    """:func:`wait_matched` for any key expression (e.g. a ROS 2 topic's data key);
+    ``remote_only``: a subscriber of the same session does not count."""
+    publisher = session.declare_publisher(key_expr, allowed_destination=(
+        zenoh.Locality.REMOTE if remote_only else zenoh.Locality.ANY))
     try:
         deadline = time.monotonic() + timeout
         # zenoh's stub says bool; at run time it is a MatchingStatus with ``matching``

@@ -18,7 +18,14 @@ import cv2
 import numpy as np
 import pytest
 
-from schemas import Command, HumanoidPose, IrBackendStatus, IrCommand, MarkerInCamera
+from schemas import (
+    Command,
+    HumanoidPose,
+    IrBackendStatus,
+    IrCommand,
+    MarkerInCamera,
+    ServiceStats,
+)
 from schemas.keys import FRAME, HUMANOID_POSE, IR_BACKEND, IR_COMMAND, SIM_IR
 from services.runtime.config import parse_deployment
 from services.runtime.frames import FrameError, check_frame, encode_frame, jpeg_dimensions
@@ -115,7 +122,6 @@ def test_a_command_whose_code_disagrees_with_its_name_is_rejected(router: str, m
         await asyncio.sleep(0.3)
         got += list(iter(heard.get_nowait, None))
         status = await bus.get(IR_BACKEND, IrBackendStatus, timeout=2)
-        from schemas import ServiceStats
         stats = await bus.get("stats/ir_transmitter", ServiceStats, timeout=2)
         task.cancel()
         reasons = stats[0].rejected.get(key, {})
@@ -189,7 +195,7 @@ def test_three_jpeg_bombs_cost_little_memory_and_poses_keep_flowing(router: str,
         t0 = time.monotonic()
         pose = None
         seq = 10
-        while pose is None and time.monotonic() - t0 < 5.0:
+        while pose is None and time.monotonic() - t0 < 30.0:  # generous: a loaded machine
             bus.put_frame(*encode_frame(frame, seq, time.time_ns()))
             seq += 1
             try:
@@ -198,12 +204,17 @@ def test_three_jpeg_bombs_cost_little_memory_and_poses_keep_flowing(router: str,
                 pass
         flowing_s = time.monotonic() - t0
         grown = _rss_mb() - before
+        stats = await bus.get("stats/vertex_extractor", ServiceStats, timeout=5)
         task.cancel()
         assert pose is not None and pose.x is not None, "no pose after the bombs"
+        # refused by their size before decoding (the newest at least: older ones may be
+        # superseded unread), not decoded slowly
+        reasons = stats[0].rejected.get(bus.keys.key(FRAME), {})
+        assert any("JPEG is 30000x30000" in r for r in reasons), reasons
         return grown, flowing_s
     grown, flowing_s = asyncio.run(go())
     print(f"\nthree JPEG bombs: memory +{grown:.0f} MB, a pose {1000 * flowing_s:.0f} ms later")
-    assert grown < 300 and flowing_s < 2.0
+    assert grown < 300
 
 
 @pytest.mark.slow
@@ -296,7 +307,6 @@ def test_the_limits_table_sets_what_services_accept(router: str, make_bus):
     bus = make_bus("camera")
 
     async def go() -> dict[str, dict[str, int]]:
-        from schemas import ServiceStats
         task = asyncio.create_task(run_deployment(dep, duration=15))
         await wait_alive_async(bus.session, "ir_transmitter", "vertex_extractor")
         await wait_matched(bus, FRAME)
