@@ -4,7 +4,7 @@ import pytest
 
 from schemas import CameraPose, Command, Hold, IrCommand, MissionGoal
 from schemas.keys import IR_COMMAND, MISSION_GOAL, MISSION_HOLD, ODOM
-from tests.conftest import run_cli, spawn_cli, wait_matched, wait_matched_key
+from tests.conftest import cli_here, run_cli, spawn_cli, wait_matched, wait_matched_key
 
 
 @pytest.mark.slow
@@ -48,5 +48,5 @@ def test_typed_round_trip_between_processes(router, make_bus, sessions):
 
 
 def test_mission_goto_needs_pairs():
-    out = run_cli("mission", "goto", "0.6")
+    out = cli_here("mission", "goto", "0.6")
     assert out.returncode == 2 and "X Y pairs" in out.stderr

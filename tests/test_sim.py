@@ -20,7 +20,7 @@ from services.sim.humanoid import Humanoid, HumanoidParams
 from services.sim.render import RenderStyle, coverage_mask, render_view
 from services.sim.scenes import marker_pose, random_views
 from services.sim.webcam import srgb_to_linear
-from tests.conftest import run_cli, wait_for, wait_matched_key
+from tests.conftest import cli_here, wait_for, wait_matched_key
 
 
 def test_projection_matches_opencv_with_distortion_and_adds_skew():
@@ -183,7 +183,7 @@ def test_camera_robot_stops_short_of_an_obstacle():
 
 
 def test_sim_snapshot_of_a_fresh_scene(tmp_path: Path):
-    out = run_cli("sim", "snapshot", "--fresh", "--out", str(tmp_path / "f.png"))
+    out = cli_here("sim", "snapshot", "--fresh", "--out", str(tmp_path / "f.png"))
     assert out.returncode == 0, out.stderr
     img = cv2.imread(str(tmp_path / "f.png"))
     assert img is not None and img.shape == (480, 640, 3)
