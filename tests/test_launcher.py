@@ -15,7 +15,7 @@ from services.runtime import registry
 from services.runtime.config import ConfigError, load_deployment, parse_deployment
 from services.runtime.launcher import run_deployment
 from services.tools.cli import build_parser
-from tests.conftest import run_cli, spawn_cli, wait_for, wait_matched_key
+from tests.conftest import cli_here, run_cli, spawn_cli, wait_for, wait_matched_key
 from tests.helpers import crashy
 
 
@@ -39,14 +39,17 @@ def test_bad_deployment_file_exits_2_naming_file_and_key(tmp_path: Path, capsys,
     assert len(err.strip().splitlines()) == 1
 
 
-def test_bad_and_missing_files_exit_2_from_the_real_cli(tmp_path: Path):
+def test_a_bad_file_exits_2_from_the_real_cli(tmp_path: Path):
     path = tmp_path / "bad.toml"
     path.write_text("[services.sim]\nfsp = 3\n")
     out = run_cli("run", str(path))
     assert out.returncode == 2
     assert f"{path}" in out.stderr and "services.sim.fsp: unknown key" in out.stderr, out.stderr
     assert len(out.stderr.strip().splitlines()) == 1
-    out = run_cli("run", str(tmp_path / "nope.toml"))
+
+
+def test_missing_file_exits_2(tmp_path: Path):
+    out = cli_here("run", str(tmp_path / "nope.toml"))
     assert out.returncode == 2 and "cannot read deployment file" in out.stderr
 
 
@@ -174,6 +177,6 @@ def test_sigterm_stops_everything_within_2s_and_sends_stop(tmp_path: Path, route
 
 def test_a_busy_listen_endpoint_is_a_clear_error(router):
     port = router.rsplit(":", 1)[1]  # the router fixture already listens there
-    out = run_cli("run", "--listen", f"tcp/127.0.0.1:{port}", "--duration", "5")
+    out = cli_here("run", "--listen", f"tcp/127.0.0.1:{port}", "--duration", "5")
     assert out.returncode == 2
     assert "cannot open the Zenoh session" in out.stderr and "Traceback" not in out.stderr
