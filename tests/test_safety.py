@@ -31,7 +31,14 @@ from services.runtime.config import parse_deployment
 from services.runtime.frames import FrameError, check_frame, encode_frame, jpeg_dimensions
 from services.runtime.launcher import run_deployment
 from services.runtime.session import Limits
-from tests.conftest import spawn_cli, wait_alive, wait_alive_async, wait_matched
+from tests.conftest import (
+    spawn_cli,
+    wait_alive,
+    wait_alive_async,
+    wait_matched,
+    wait_matched_key,
+    wait_until,
+)
 from tests.helpers.pty import Pty
 
 WALK, STOP = 0x86, 0x8E
@@ -292,9 +299,10 @@ def test_replay_leaves_out_actuation_unless_asked_and_can_change_namespace(
     got: list[str] = []
     s = sessions()
     sub = s.declare_subscriber("**", lambda sample: got.append(str(sample.key_expr)))
-    time.sleep(0.3)
+    asyncio.run(wait_matched_key(sessions(), expected[0], remote_only=True))  # at the router
     out = run_cli("replay", str(rec), "--connect", router, *flags)
-    time.sleep(0.3)
+    wait_until(lambda: len(got) >= len(expected), f"{len(expected)} replayed samples")
+    time.sleep(0.3)  # and nothing more (a negative check: a short wait cannot make it fail)
     sub.undeclare()
     assert out.returncode == 0, out.stderr
     assert got == expected
@@ -313,14 +321,19 @@ def test_the_limits_table_sets_what_services_accept(router: str, make_bus):
         task = asyncio.create_task(run_deployment(dep, duration=15))
         await wait_alive_async(bus.session, "ir_transmitter", "vertex_extractor")
         await wait_matched(bus, FRAME)
+        await wait_matched(bus, IR_COMMAND)
         bus.put_frame(*encode_frame(np.zeros((480, 640, 3), np.uint8), 1, time.time_ns()))
         bus.session.put(bus.keys.key(IR_COMMAND), json.dumps(
             {"command": "stop", "pad": "x" * 3000}), encoding=IrCommand.zenoh_encoding())
-        await asyncio.sleep(0.5)
         rejected: dict[str, dict[str, int]] = {}
-        for name in ("vertex_extractor", "ir_transmitter"):
-            stats = await bus.get(f"stats/{name}", ServiceStats, timeout=2)
-            rejected.update(stats[0].rejected)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:  # until both services counted theirs
+            for name in ("vertex_extractor", "ir_transmitter"):
+                stats = await bus.get(f"stats/{name}", ServiceStats, timeout=2)
+                rejected.update(stats[0].rejected if stats else {})
+            if {"shepherd/camera/frame", "shepherd/ir/command"} <= set(rejected):
+                break
+            await asyncio.sleep(0.05)
         task.cancel()
         return rejected
     rejected = asyncio.run(go())
