@@ -182,8 +182,9 @@ def run_cli(*args: str, timeout: float = 60.0, cwd: Path | None = None
 def cli_here(*args: str) -> subprocess.CompletedProcess[str]:
     """:func:`run_cli` in this process (the same parser and command, no second interpreter to
     start: about a second less each), for tests about what a command does rather than about
-    the process; output captured, exit code as ``shepherd`` would return it. Not for commands
-    that run services (``main``'s event-loop and logging set-up is left out)."""
+    the process; output captured, exit code as ``shepherd`` would return it. ``main``'s
+    event-loop and logging set-up is left out: not for runs that start services (one that
+    fails before starting them, as on a busy endpoint, is fine)."""
     import contextlib
     import io
 
