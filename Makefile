@@ -24,17 +24,23 @@ lint: install
 	$(BIN)/ruff check schemas services tests
 	$(BIN)/mypy schemas services tests
 
+# Both run on two workers (pytest-xdist): every test has its own router on a free port and its
+# own temporary folder; the numba kernels are compiled once before the workers start (edited
+# kernels would otherwise compile in both at once; cached, this takes a second). Tests marked
+# xdist_group("realtime") (real-time missions, dead-man deadlines, the flat-out load run) run
+# one after another on one worker, never beside each other.
 test: install
 	bash scripts/install-test-deps
 	$(MAKE) lint
-	$(BIN)/pytest -q
+	$(BIN)/shepherd compile
+	$(BIN)/pytest -q -n 2 --dist loadgroup
 
-# everything but the tests marked slow (end-to-end runs, the wheel install), on both cores:
-# under a minute
+# everything but the tests marked slow (end-to-end runs, the wheel install): under a minute
 test-fast: install
 	bash scripts/install-test-deps
 	$(MAKE) lint
-	$(BIN)/pytest -q -m "not slow" -n 2
+	$(BIN)/shepherd compile
+	$(BIN)/pytest -q -m "not slow" -n 2 --dist loadgroup
 
 bench: install
 	$(BIN)/shepherd bench

@@ -18,7 +18,7 @@ from services.calibration.zhang import CalibrationError, calibrate
 from services.core.camera import CameraModel
 from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
-from tests.conftest import DATASETS, run_cli, wait_alive_async
+from tests.conftest import DATASETS, cli_here, run_cli, wait_alive_async
 
 ZHANG = DATASETS / "zhang1998_calibration"
 OPENCV = DATASETS / "opencv_left_chessboard"
@@ -72,9 +72,9 @@ def test_squares_detector_matches_zhangs_points(i):
 
 
 def test_zhangs_images_calibrate_within_1_percent(tmp_path: Path):
-    out = run_cli("calibrate", "intrinsics", *map(str, sorted(ZHANG.glob("CalibIm*.gif"))),
-                  "--pattern", "squares:8x8:0.0127:0.0225778", "--out",
-                  str(tmp_path / "cam.toml"), "--plots", str(tmp_path / "plots"))
+    out = cli_here("calibrate", "intrinsics", *map(str, sorted(ZHANG.glob("CalibIm*.gif"))),
+                   "--pattern", "squares:8x8:0.0127:0.0225778", "--out",
+                   str(tmp_path / "cam.toml"), "--plots", str(tmp_path / "plots"))
     assert out.returncode == 0, out.stderr
     cam = CameraModel.load(tmp_path / "cam.toml")
     got = _params(cam.K, cam.dist)
@@ -89,8 +89,8 @@ def test_zhangs_images_calibrate_within_1_percent(tmp_path: Path):
 
 def test_opencv_chessboards_within_1_percent_of_cv2_calibrate_camera(tmp_path: Path):
     paths = sorted(OPENCV.glob("left*.jpg"))
-    out = run_cli("calibrate", "intrinsics", *map(str, paths), "--pattern",
-                  "chessboard:9x6:1.0", "--out", str(tmp_path / "cam.toml"))
+    out = cli_here("calibrate", "intrinsics", *map(str, paths), "--pattern",
+                   "chessboard:9x6:1.0", "--out", str(tmp_path / "cam.toml"))
     assert out.returncode == 0, out.stderr
     ours = CameraModel.load(tmp_path / "cam.toml")
     obj = np.zeros((54, 3), np.float32)
@@ -178,7 +178,7 @@ def test_intrinsics_cli_skips_bad_views_and_needs_three(tmp_path: Path):
 @pytest.mark.parametrize("suffix", ["pdf", "svg", "png"])
 def test_pattern_is_drawn_at_exact_physical_size(tmp_path: Path, suffix):
     out = tmp_path / f"grid.{suffix}"
-    res = run_cli("calibrate", "pattern", "--out", str(out), "--dpi", "200")
+    res = cli_here("calibrate", "pattern", "--out", str(out), "--dpi", "200")
     assert res.returncode == 0, res.stderr
     data = out.read_bytes()
     if suffix == "pdf":

@@ -1,11 +1,10 @@
 import asyncio
-import time
 
 import pytest
 
 from schemas import CameraPose, Command, Hold, IrCommand, MissionGoal
 from schemas.keys import IR_COMMAND, MISSION_GOAL, MISSION_HOLD, ODOM
-from tests.conftest import run_cli, spawn_cli
+from tests.conftest import cli_here, run_cli, spawn_cli, wait_matched, wait_matched_key
 
 
 @pytest.mark.slow
@@ -13,7 +12,8 @@ def test_echo_shows_messages_published_by_another_process(router, make_bus):
     echo = spawn_cli("echo", "shepherd/**", "--connect", router, "--count", "3",
                      "--duration", "20")
     bus = make_bus("pub")
-    time.sleep(2.0)
+    for key in (ODOM, IR_COMMAND, MISSION_HOLD):  # echo's subscriber is up, not a sleep
+        asyncio.run(wait_matched(bus, key))
     bus.put(ODOM, CameraPose(x=0.5, y=-0.25, yaw=0.0))
     bus.put(IR_COMMAND, IrCommand(command=Command.TURN_LEFT))
     bus.put(MISSION_HOLD, Hold(hold=True, reason="\x1b[2J\rgone\u202e"))  # hostile text
@@ -26,13 +26,15 @@ def test_echo_shows_messages_published_by_another_process(router, make_bus):
 
 
 @pytest.mark.slow
-def test_typed_round_trip_between_processes(router, make_bus):
+def test_typed_round_trip_between_processes(router, make_bus, sessions):
     bus = make_bus("sub")
+    elsewhere = sessions()  # sees our subscribers once the router has them
 
     async def go():
         cmds = bus.subscribe(IR_COMMAND, IrCommand, latest=False)
         goals = bus.subscribe(MISSION_GOAL, MissionGoal, latest=False)
-        await asyncio.sleep(0.3)
+        for key in (IR_COMMAND, MISSION_GOAL):
+            await wait_matched_key(elsewhere, bus.keys.key(key))
         out = await asyncio.to_thread(run_cli, "ir", "send", "walk_forward", "--connect",
                                       router)
         assert out.returncode == 0, out.stderr
@@ -46,7 +48,7 @@ def test_typed_round_trip_between_processes(router, make_bus):
 
 
 def test_mission_goto_needs_pairs():
-    out = run_cli("mission", "goto", "0.6")
+    out = cli_here("mission", "goto", "0.6")
     assert out.returncode == 2 and "X Y pairs" in out.stderr
 
 

@@ -18,7 +18,7 @@ from services.ir_transmitter.service import Transmitter
 from services.mission_controller.controller import ControlParams, HeuristicController
 from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
-from tests.conftest import wait_alive_async
+from tests.conftest import wait_alive_async, wait_until
 from tests.helpers.pty import Pty
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -211,20 +211,21 @@ def test_lirc_backend_against_a_real_lircd(tmp_path: Path):
                              "-P", str(tmp_path / "pid"), str(conf)],
                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     try:
-        for _ in range(50):
-            if sock.exists():
-                break
-            time.sleep(0.1)
+        wait_until(sock.exists, "lircd's socket")
         backend = LircBackend(socket=str(sock))
         sent = [Command.WALK_FORWARD, Command.TURN_LEFT, Command.STOP, Command.TURN_RIGHT,
                 Command.WALK_BACKWARD]
         for c in sent:
             backend.send(IrCommand(command=c))
-        time.sleep(0.3)
-        values = [int(line.split()[1]) for line in out.read_text().splitlines() if line.strip()]
+
+        def values() -> list[int]:
+            text = out.read_text() if out.exists() else ""
+            return [int(line.split()[1]) for line in text.splitlines() if line.strip()]
+        wait_until(lambda: sum(v > 50000 for v in values()) >= len(sent),
+                   f"lircd wrote {len(sent)} frames")
         frames: list[list[int]] = []
         current: list[int] = []
-        for v in values:
+        for v in values():
             if v > 50000:  # the trailing gap ends a frame
                 frames.append(current)
                 current = []
@@ -259,8 +260,13 @@ def test_hot_swap_under_a_stream_of_commands_loses_none(router, make_bus):
                 bus.put(IR_BACKEND, IrBackendRequest(backend="serial",
                                                      options={"baud": 9600}))  # no port: bad
             await asyncio.sleep(0.01)
-        await asyncio.sleep(1.0)
-        status = await bus.get(IR_BACKEND, IrBackendStatus, timeout=2)
+        deadline = time.monotonic() + 30
+        while True:  # until all 40 are accounted for (sent or failed), on a loaded machine too
+            status = await bus.get(IR_BACKEND, IrBackendStatus, timeout=2)
+            done = bool(status) and status[0].sent + status[0].failed >= n
+            if done or time.monotonic() > deadline:
+                break
+            await asyncio.sleep(0.05)
         task.cancel()
         return status
     status = asyncio.run(go())
@@ -345,8 +351,8 @@ def test_serial_backend_counts_codes_the_firmware_did_not_acknowledge(tmp_path: 
     backend = SerialBackend(str(acked.link), ack_timeout_s=0.2)
     try:
         backend.send(IrCommand(command=Command.WALK_FORWARD))
-        time.sleep(0.3)
-        backend.heartbeat()
+        wait_until(lambda: acked.acks == 1, "the firmware's acknowledgement")  # not a sleep:
+        backend.heartbeat()  # the ack is waiting, however late it came, and is matched first
         assert backend.unacked == 0
     finally:
         backend.close()

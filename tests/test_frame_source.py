@@ -4,6 +4,7 @@ controls applied and read back, frame size and intrinsics kept consistent."""
 from __future__ import annotations
 
 import asyncio
+import time
 from pathlib import Path
 
 import cv2
@@ -57,8 +58,10 @@ def test_the_service_publishes_file_stamps_and_scaled_intrinsics(tmp_path: Path,
     async def go() -> list[CameraIntrinsics]:
         task = asyncio.create_task(run_deployment(dep, duration=10))
         await wait_alive_async(bus.session, "frame_source")
-        await asyncio.sleep(0.3)
-        got = await bus.get(INTRINSICS, CameraIntrinsics, timeout=2)
+        deadline = time.monotonic() + 30
+        while not (got := await bus.get(INTRINSICS, CameraIntrinsics, timeout=2)):
+            assert time.monotonic() < deadline, "the intrinsics queryable never answered"
+            await asyncio.sleep(0.05)
         await task
         return got
     intrinsics = asyncio.run(go())

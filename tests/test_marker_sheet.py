@@ -9,11 +9,11 @@ import numpy as np
 
 from services.vertex_extractor.extractor import RhombusExtractor
 from services.vertex_extractor.sheet import MarkerSheet
-from tests.conftest import run_cli
+from tests.conftest import cli_here
 
 
 def test_the_printed_marker_has_the_mounts_size_and_our_extractor_finds_it(tmp_path: Path):
-    out = run_cli("marker", "sheet", "--out", str(tmp_path / "m.png"), "--dpi", "100")
+    out = cli_here("marker", "sheet", "--out", str(tmp_path / "m.png"), "--dpi", "100")
     assert out.returncode == 0, out.stderr
     assert "rhombus 50 x 66 mm" in out.stdout and "the bar is 100 mm" in out.stdout
     data = (tmp_path / "m.png").read_bytes()
@@ -33,11 +33,11 @@ def test_the_printed_marker_has_the_mounts_size_and_our_extractor_finds_it(tmp_p
 
 
 def test_the_pdf_draws_the_rhombus_in_magenta_at_exact_size(tmp_path: Path):
-    assert run_cli("marker", "sheet", "--out", str(tmp_path / "m.pdf")).returncode == 0
+    assert cli_here("marker", "sheet", "--out", str(tmp_path / "m.pdf")).returncode == 0
     pdf = (tmp_path / "m.pdf").read_bytes()
     assert pdf.startswith(b"%PDF-1.4") and b"1.0000 0.0000 1.0000 rg" in pdf
     pt = 72 / 25.4
     left_x = (105.0 - 25.0) * pt
     assert f"{left_x:.3f}".encode() in pdf  # the left vertex, 25 mm left of the centre
-    bad = run_cli("marker", "sheet", "--out", str(tmp_path / "m.txt"))
+    bad = cli_here("marker", "sheet", "--out", str(tmp_path / "m.txt"))
     assert bad.returncode == 2 and "expected .pdf, .svg or .png" in bad.stderr

@@ -1,15 +1,18 @@
 """The whole loop in simulation: the default mission, the course, the split deployment."""
 
+import contextlib
 import re
 import signal
-import time
+import socket
 from pathlib import Path
 
 import pytest
 
-from tests.conftest import ROOT, endpoint, spawn_cli
+from tests.conftest import ROOT, endpoint, spawn_cli, wait_until
 
-pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
+# end-to-end: left out of `make test-fast`; in real time, so `make test` runs it on the
+# worker of the other real-time tests, one after another
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("realtime")]
 
 
 def _final_error_cm(out: str) -> float:
@@ -52,7 +55,13 @@ def test_split_deployment_through_a_router(tmp_path: Path):
     ep = endpoint()
     router = spawn_cli("router", "--listen", ep)
     try:
-        time.sleep(1.0)
+        host, port = ep.removeprefix("tcp/").rsplit(":", 1)
+
+        def listening() -> bool:
+            with contextlib.suppress(OSError), socket.create_connection((host, int(port)), 1):
+                return True
+            return False
+        wait_until(listening, "the router listening")
         robot = spawn_cli("--log-level", "WARNING", "run", str(ROOT / "deploy/sim-robot.toml"),
                           "--connect", ep, "--processes", cwd=tmp_path)
         laptop = spawn_cli("--log-level", "WARNING", "run",

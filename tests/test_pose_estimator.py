@@ -205,26 +205,28 @@ def test_service_publishes_world_pose_and_nulls_without_odometry(router, make_bu
     async def go():
         poses = bus.subscribe(HUMANOID_POSE, HumanoidPose, latest=False, queue=16)
         steady = bus.subscribe(HUMANOID_POSE_FILTERED, HumanoidPose, latest=False, queue=16)
-        task = asyncio.create_task(run_deployment(dep, duration=15))
+        task = asyncio.create_task(run_deployment(dep, duration=60))
         await wait_alive_async(bus.session, "pose_estimator")
         bus.put(VERTICES, vertices(1, 10**18))
-        p1 = await poses.recv(timeout=5)
+        p1 = await poses.recv(timeout=30)
         assert p1.x is None and "odometry" in p1.reason
         assert p1.marker_in_camera.position[2] == pytest.approx(T_camera_marker[2, 3], abs=1e-6)
         bus.put(ODOM, CameraPose(stamp_ns=2 * 10**18, x=0.0, y=0.0, yaw=0.0))
+        # not observable from here: without this wait the vertices, published after the
+        # odometry, sometimes reach the estimator first (seen 1 in 7 runs on a loaded machine)
         await asyncio.sleep(0.2)
         bus.put(VERTICES, vertices(2, 2 * 10**18))
-        p2 = await poses.recv(timeout=5)
+        p2 = await poses.recv(timeout=30)
         assert (p2.x, p2.y, p2.yaw) == pytest.approx((0.4, 0.02, 0.1), abs=1e-6)
         assert p2.covariance is not None
-        s2 = await steady.recv(timeout=5)  # the steady pose, beside it, starts there
+        s2 = await steady.recv(timeout=30)  # the steady pose, beside it, starts there
         assert (s2.seq, s2.x, s2.y) == (2, pytest.approx(0.4, abs=1e-6), pytest.approx(0.02))
         assert s2.covariance is not None and s2.covariance[0][0] > p2.covariance[0][0]
         bad = MarkerVertices(seq=3, stamp_ns=1, found=True,
                              vertices_px=((1, 1), (1, 1), (1, 1), (1, 1)))
         bus.put(VERTICES, bad)  # degenerate: logged, no pose, service stays up
         bus.put(VERTICES, vertices(4, 2 * 10**18))
-        p4 = await poses.recv(timeout=5)
+        p4 = await poses.recv(timeout=30)
         assert p4.seq == 4
         task.cancel()
     asyncio.run(go())

@@ -12,6 +12,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
+import zenoh
 from scipy.spatial.transform import Rotation
 
 from schemas import (
@@ -27,7 +28,7 @@ from services.ros2_bridge import convert, rmw
 from services.ros2_bridge.frames import FrameNames, Tree, UnknownFrameError
 from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
-from tests.conftest import wait_alive_async
+from tests.conftest import wait_alive_async, wait_for, wait_matched, wait_matched_key
 
 CHATTER_HASH = "RIHS01_df668c740482bbd48fb39d76a70dfd4bd59db1288021743503259e948f6b1a18"
 
@@ -138,6 +139,21 @@ def test_settings_keep_one_tree():
     assert Settings(goal_frame="odom").frame_names().world == "map"
 
 
+async def _ros_tokens(ros: zenoh.Session, *parts: str, timeout: float = 30.0) -> list[str]:
+    """The bridge's ROS 2 liveliness tokens once one holds each of ``parts`` (the bridge
+    declares them as it starts; a loaded machine takes its time)."""
+    deadline = time.monotonic() + timeout
+    while True:
+        tokens = [str(r.ok.key_expr) for r in await asyncio.to_thread(
+            lambda: list(ros.liveliness().get("@ros2_lv/0/**", timeout=5.0))) if r.ok]
+        missing = [p for p in parts if not any(p in t for t in tokens)]
+        if not missing:
+            return tokens
+        if time.monotonic() > deadline:
+            pytest.fail(f"no ROS 2 token with {missing} in {timeout:.0f} s: {tokens}")
+        await asyncio.sleep(0.05)
+
+
 def _pose(x: float, y: float, yaw: float, stamp: int) -> HumanoidPose:
     cov = ((1e-4, 2e-5, 3e-6), (2e-5, 4e-4, 5e-6), (3e-6, 5e-6, 6e-3))
     return HumanoidPose(seq=3, stamp_ns=stamp, x=x, y=y, yaw=yaw, covariance=cov,
@@ -158,26 +174,25 @@ def test_what_the_bridge_publishes_decodes_in_rosbags_to_the_same_values(router,
     stamp = 1_700_000_000_123_456_789
 
     async def go() -> list[str]:
-        task = asyncio.create_task(run_deployment(dep, duration=15))
+        task = asyncio.create_task(run_deployment(dep, duration=60))
         await wait_alive_async(bus.session, "ros2_bridge")
-        tokens = [str(r.ok.key_expr) for r in await asyncio.to_thread(
-            lambda: list(ros.liveliness().get("@ros2_lv/0/**", timeout=1.0))) if r.ok]
-        await asyncio.sleep(0.3)
+        tokens = await _ros_tokens(ros, "/NN/", "%humanoid%pose/", "/MS/%/%/shepherd_bridge/%odom/",
+                                   "%goal_pose/")
+        for suffix in (HUMANOID_POSE, CAMERA_GOAL):
+            await wait_matched(bus, suffix)
 
         async def until(count: int, topic: str = "0/shepherd/humanoid/pose") -> None:
-            for _ in range(100):  # up to 5 s on a loaded machine
-                if sum(k.startswith(topic) for k, _, _ in samples) >= count:
-                    return
-                await asyncio.sleep(0.05)
+            await wait_for(lambda: sum(k.startswith(topic) for k, _, _ in samples) >= count,
+                           f"{count} samples on {topic}")
 
         bus.put(HUMANOID_POSE, _pose(0.6, -0.2, 0.5, stamp))
         bus.put(CAMERA_GOAL, CameraGoal(stamp_ns=stamp, x=0.3, y=0.1, yaw=-1.0, reason="d"))
         bus.put(ODOM, CameraPose(stamp_ns=stamp, x=0.05, y=0.0, yaw=0.25))
         await until(1)
-        await asyncio.sleep(0.2)
+        await until(1, "0/goal_pose")
         bus.put(HUMANOID_POSE, _pose(0.61, -0.2, 0.5, stamp + 1))
         await until(2)
-        await asyncio.sleep(0.2)
+        await until(2, "0/tf/")
         task.cancel()
         return tokens
     tokens = asyncio.run(go())
@@ -253,18 +268,21 @@ def test_ros_odometry_and_goals_become_shepherd_messages(router, make_bus, sessi
     async def go() -> tuple[CameraPose, MissionGoal, MissionGoal, ServiceStats]:
         odoms = bus.subscribe(ODOM, CameraPose, latest=False, queue=4)
         missions = bus.subscribe(MISSION_GOAL, MissionGoal, latest=False, queue=4)
-        task = asyncio.create_task(run_deployment(dep, duration=15))
+        task = asyncio.create_task(run_deployment(dep, duration=60))
         await wait_alive_async(bus.session, "ros2_bridge")
-        await asyncio.sleep(0.3)
+        odom_key = rmw.data_key(0, "/odom", convert.ODOMETRY)
+        for key in (odom_key, goal_key):  # the bridge's ROS subscriptions reached ``ros``
+            await wait_matched_key(ros, key)
         gid = bytes(16)
-        ros.put(rmw.data_key(0, "/odom", convert.ODOMETRY), rmw.serialize(odom, convert.ODOMETRY),
+        ros.put(odom_key, rmw.serialize(odom, convert.ODOMETRY),
                 attachment=rmw.pack_attachment(1, time.time_ns(), gid))
         for n, frame in enumerate(("map", "odom", "base_footprint")):
             ros.put(goal_key, goal(frame), attachment=rmw.pack_attachment(n + 1, time.time_ns(),
                                                                           gid))
-        camera, in_map, in_odom = (await odoms.recv(timeout=5), await missions.recv(timeout=5),
-                                   await missions.recv(timeout=5))
-        for _ in range(50):  # the third goal, refused, shows in the bridge's stats
+        camera, in_map, in_odom = (await odoms.recv(timeout=30), await missions.recv(timeout=30),
+                                   await missions.recv(timeout=30))
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:  # the third goal, refused, shows in the stats
             stats = await bus.get(f"{STATS}/ros2_bridge", ServiceStats)
             if stats and stats[0].rejected:
                 break
@@ -301,21 +319,28 @@ def test_the_camera_image_and_its_info_reach_ros_rate_limited(router, make_bus, 
     # the intrinsics were put before the bridge started: only the queryable has them now
     bus.declare_queryable("camera/intrinsics", CameraModel.paper().to_message)
 
-    async def go() -> None:
-        task = asyncio.create_task(run_deployment(dep, duration=15))
+    async def go() -> float:
+        task = asyncio.create_task(run_deployment(dep, duration=60))
         await wait_alive_async(bus.session, "ros2_bridge")
         await wait_matched(bus, "camera/frame")
         t0 = time.monotonic()
         seq = 0
-        while time.monotonic() - t0 < 1.0:  # 30 fps for a second
+        # 30 fps for a second, and on until two images and the info came out (a loaded
+        # machine's bridge may need longer for them)
+        while time.monotonic() - t0 < 1.0 or len(got["image"]) < 2 or not got["info"]:
+            if time.monotonic() - t0 > 30:
+                pytest.fail(f"{len(got['image'])} images, {len(got['info'])} infos in 30 s")
             bus.put_frame(*encode_frame(image, seq, 1_700_000_000_000_000_000 + seq))
             seq += 1
             await asyncio.sleep(1 / 30)
+        sending_s = time.monotonic() - t0
         await asyncio.sleep(0.3)
         task.cancel()
-    asyncio.run(go())
+        return sending_s + 0.3
+    window_s = asyncio.run(go())
     sub.undeclare()
-    assert 2 <= len(got["image"]) <= 6  # about 4 a second, not 30
+    # about 4 a second, not 30: at most one per 1/4 s of the window they could come out in
+    assert 2 <= len(got["image"]) <= 1 + 4 * window_s, (len(got["image"]), window_s)
     img = rmw.deserialize(got["image"][0], convert.IMAGE)
     assert img.format == "jpeg" and img.header.frame_id == "camera_optical_frame"
     decoded = cv2.imdecode(np.asarray(img.data), cv2.IMREAD_COLOR)
@@ -360,14 +385,11 @@ def test_with_odom_tf_the_simulated_robot_joins_the_tree(router, make_bus, sessi
                                  lambda s: samples.append(s.payload.to_bytes()))
 
     async def go() -> list[str]:
-        task = asyncio.create_task(run_deployment(dep, duration=15))
+        task = asyncio.create_task(run_deployment(dep, duration=60))
         await wait_alive_async(bus.session, "ros2_bridge")
-        await asyncio.sleep(0.3)
+        await wait_matched(bus, ODOM)
         bus.put(ODOM, CameraPose(stamp_ns=7, x=1.5, y=2.0, yaw=0.25))
-        for _ in range(100):
-            if samples:
-                break
-            await asyncio.sleep(0.05)
+        await wait_for(lambda: samples, "odom -> base_link on /tf")
         tokens = [str(r.ok.key_expr) for r in await asyncio.to_thread(
             lambda: list(ros.liveliness().get("@ros2_lv/0/**", timeout=1.0))) if r.ok]
         task.cancel()
@@ -404,10 +426,7 @@ def test_a_late_rmw_zenoh_subscriber_gets_tf_static_from_the_cache(router, make_
             history=zenoh.ext.HistoryConfig(detect_late_publishers=True, max_samples=1),
             recovery=zenoh.ext.RecoveryConfig(periodic_queries=None, heartbeat=True),
             subscriber_detection=True)
-        for _ in range(100):
-            if got:
-                break
-            await asyncio.sleep(0.05)
+        await wait_for(lambda: got, "/tf_static from the bridge's cache")
         sub.undeclare()
         task.cancel()
     asyncio.run(go())

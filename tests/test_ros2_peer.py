@@ -32,7 +32,7 @@ from services.core.mounts import Geometry
 from services.ros2_bridge import convert, params, rmw
 from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
-from tests.conftest import wait_alive_async
+from tests.conftest import wait_alive_async, wait_matched_key
 from tests.helpers import ros_peer
 
 TOPIC_TYPES = [convert.POSE_COV, convert.POSE, convert.TF, convert.ODOMETRY, convert.IMAGE,
@@ -126,7 +126,7 @@ class Received:
             return list(self.by_topic[topic])
 
 
-async def _until(check: Any, what: str, timeout: float = 10.0) -> None:
+async def _until(check: Any, what: str, timeout: float = 30.0) -> None:
     deadline = time.monotonic() + timeout
     while not check():
         if time.monotonic() > deadline:
@@ -200,7 +200,11 @@ def test_the_peer_sees_one_tf_tree_and_shepherds_values(router, make_bus, peer):
         mission = ROS2Publisher("/shepherd/mission/goal", convert.POSE, node_name="rviz", **where)
         endpoints.extend([robot_odom, robot_tf, mission])
         await _until(lambda: got.get("/tf_static"), "/tf_static from the cache")
-        await asyncio.sleep(0.5)  # the bridge matches the peer's publishers
+        for topic, ros_type in (("/odom", convert.ODOMETRY),
+                                ("/shepherd/mission/goal", convert.POSE)):
+            # the bridge's subscriptions have reached the peer's side of the router
+            await wait_matched_key(peer.session, rmw.data_key(0, topic, ros_type),
+                                   remote_only=True)
 
         T = rmw.typestore().types
         odom_pose = T["geometry_msgs/msg/PoseWithCovariance"](
@@ -222,14 +226,15 @@ def test_the_peer_sees_one_tf_tree_and_shepherds_values(router, make_bus, peer):
         bus.put(CAMERA_GOAL, goal)
         await _until(lambda: got.get("/shepherd/humanoid/pose") and got.get("/goal_pose")
                      and len(got.get("/tf")) >= 2, "pose, goal and /tf at the peer")
-        camera = [await odoms.recv(timeout=5)]
-        in_map = [await missions.recv(timeout=5)]
+        camera = [await odoms.recv(timeout=30)]
+        in_map = [await missions.recv(timeout=30)]
         stats: list[ServiceStats] = []
 
         def refused() -> bool:
             return bool(stats and stats[0].rejected)
 
-        for _ in range(50):
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:  # the refused goal shows in the bridge's stats
             stats = await bus.get(f"{STATS}/ros2_bridge", ServiceStats)
             if refused():
                 break
@@ -330,7 +335,8 @@ def test_the_peer_reads_rosout_and_the_parameters(router, make_bus, peer):
         await wait_alive_async(bus.session, "ros2_bridge")
         mission = ROS2Publisher("/shepherd/mission/goal", convert.POSE, node_name="rviz", **where)
         endpoints.append(mission)
-        await asyncio.sleep(0.5)  # the bridge matches the peer's publisher
+        await wait_matched_key(peer.session, rmw.data_key(0, "/shepherd/mission/goal",
+                                                          convert.POSE), remote_only=True)
         T = rmw.typestore().types
         mission.publish(header=convert.header(STAMP, "base_footprint"), pose=T[
             "geometry_msgs/msg/Pose"](position=T["geometry_msgs/msg/Point"](

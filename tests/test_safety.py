@@ -18,13 +18,27 @@ import cv2
 import numpy as np
 import pytest
 
-from schemas import Command, HumanoidPose, IrBackendStatus, IrCommand, MarkerInCamera
+from schemas import (
+    Command,
+    HumanoidPose,
+    IrBackendStatus,
+    IrCommand,
+    MarkerInCamera,
+    ServiceStats,
+)
 from schemas.keys import FRAME, HUMANOID_POSE, IR_BACKEND, IR_COMMAND, SIM_IR
 from services.runtime.config import parse_deployment
 from services.runtime.frames import FrameError, check_frame, encode_frame, jpeg_dimensions
 from services.runtime.launcher import run_deployment
 from services.runtime.session import Limits
-from tests.conftest import spawn_cli, wait_alive, wait_alive_async, wait_matched
+from tests.conftest import (
+    spawn_cli,
+    wait_alive,
+    wait_alive_async,
+    wait_matched,
+    wait_matched_key,
+    wait_until,
+)
 from tests.helpers.pty import Pty
 
 WALK, STOP = 0x86, 0x8E
@@ -46,6 +60,7 @@ def _controller_host(tmp_path: Path, router: str) -> subprocess.Popen[str]:
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("realtime")  # a deadline in real time: beside no other
 @pytest.mark.parametrize("loss", ["hangs", "dies"])
 def test_a_lost_controller_host_ends_in_stop_on_the_serial_port_within_1s(
         tmp_path: Path, router: str, make_bus, loss: str):
@@ -114,7 +129,6 @@ def test_a_command_whose_code_disagrees_with_its_name_is_rejected(router: str, m
         await asyncio.sleep(0.3)
         got += list(iter(heard.get_nowait, None))
         status = await bus.get(IR_BACKEND, IrBackendStatus, timeout=2)
-        from schemas import ServiceStats
         stats = await bus.get("stats/ir_transmitter", ServiceStats, timeout=2)
         task.cancel()
         reasons = stats[0].rejected.get(key, {})
@@ -185,10 +199,18 @@ def test_three_jpeg_bombs_cost_little_memory_and_poses_keep_flowing(router: str,
             bomb = _bomb(30000, 30000)
             h = header.model_copy(update={"seq": seq, "stamp_ns": time.time_ns()})
             bus.session.put(bus.keys.key(FRAME), bomb, attachment=h.model_dump_json().encode())
+        # refused by their size before decoding (the newest at least: older ones may be
+        # superseded unread), not decoded slowly: counted before any good frame is sent
+        reasons: dict[str, int] = {}
+        deadline = time.monotonic() + 30
+        while not any("JPEG is 30000x30000" in r for r in reasons):
+            assert time.monotonic() < deadline, f"no bomb refused by its size: {reasons}"
+            stats = await bus.get("stats/vertex_extractor", ServiceStats, timeout=5)
+            reasons = stats[0].rejected.get(bus.keys.key(FRAME), {}) if stats else {}
         t0 = time.monotonic()
         pose = None
         seq = 10
-        while pose is None and time.monotonic() - t0 < 5.0:
+        while pose is None and time.monotonic() - t0 < 30.0:  # generous: a loaded machine
             bus.put_frame(*encode_frame(frame, seq, time.time_ns()))
             seq += 1
             try:
@@ -202,10 +224,11 @@ def test_three_jpeg_bombs_cost_little_memory_and_poses_keep_flowing(router: str,
         return grown, flowing_s
     grown, flowing_s = asyncio.run(go())
     print(f"\nthree JPEG bombs: memory +{grown:.0f} MB, a pose {1000 * flowing_s:.0f} ms later")
-    assert grown < 300 and flowing_s < 2.0
+    assert grown < 300
 
 
 @pytest.mark.slow
+@pytest.mark.xdist_group("realtime")  # a deadline in real time: beside no other
 @pytest.mark.parametrize("skew_s", [-0.5, 0.5])
 def test_a_clock_skew_between_hosts_neither_freezes_nor_hides_a_stale_pose(
         router: str, make_bus, skew_s: float):
@@ -276,9 +299,10 @@ def test_replay_leaves_out_actuation_unless_asked_and_can_change_namespace(
     got: list[str] = []
     s = sessions()
     sub = s.declare_subscriber("**", lambda sample: got.append(str(sample.key_expr)))
-    time.sleep(0.3)
+    asyncio.run(wait_matched_key(sessions(), expected[0], remote_only=True))  # at the router
     out = run_cli("replay", str(rec), "--connect", router, *flags)
-    time.sleep(0.3)
+    wait_until(lambda: len(got) >= len(expected), f"{len(expected)} replayed samples")
+    time.sleep(0.3)  # and nothing more (a negative check: a short wait cannot make it fail)
     sub.undeclare()
     assert out.returncode == 0, out.stderr
     assert got == expected
@@ -294,18 +318,22 @@ def test_the_limits_table_sets_what_services_accept(router: str, make_bus):
     bus = make_bus("camera")
 
     async def go() -> dict[str, dict[str, int]]:
-        from schemas import ServiceStats
         task = asyncio.create_task(run_deployment(dep, duration=15))
         await wait_alive_async(bus.session, "ir_transmitter", "vertex_extractor")
         await wait_matched(bus, FRAME)
+        await wait_matched(bus, IR_COMMAND)
         bus.put_frame(*encode_frame(np.zeros((480, 640, 3), np.uint8), 1, time.time_ns()))
         bus.session.put(bus.keys.key(IR_COMMAND), json.dumps(
             {"command": "stop", "pad": "x" * 3000}), encoding=IrCommand.zenoh_encoding())
-        await asyncio.sleep(0.5)
         rejected: dict[str, dict[str, int]] = {}
-        for name in ("vertex_extractor", "ir_transmitter"):
-            stats = await bus.get(f"stats/{name}", ServiceStats, timeout=2)
-            rejected.update(stats[0].rejected)
+        deadline = time.monotonic() + 30
+        while time.monotonic() < deadline:  # until both services counted theirs
+            for name in ("vertex_extractor", "ir_transmitter"):
+                stats = await bus.get(f"stats/{name}", ServiceStats, timeout=2)
+                rejected.update(stats[0].rejected if stats else {})
+            if {"shepherd/camera/frame", "shepherd/ir/command"} <= set(rejected):
+                break
+            await asyncio.sleep(0.05)
         task.cancel()
         return rejected
     rejected = asyncio.run(go())

@@ -16,7 +16,7 @@ from schemas import (
     MarkerVertices,
     model_for,
 )
-from tests.conftest import run_cli
+from tests.conftest import cli_here, run_cli
 
 K = ((757.25, 2.06, 389.67), (0.0, 754.24, 260.5), (0.0, 0.0, 1.0))
 
@@ -77,7 +77,7 @@ def test_key_table():
 
 
 def test_shepherd_schemas_prints_every_model():
-    out = run_cli("schemas")
+    out = cli_here("schemas")
     assert out.returncode == 0, out.stderr
     data = json.loads(out.stdout)
     for model in ALL_MODELS:

@@ -4,6 +4,7 @@ import asyncio
 import subprocess
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 import zenoh
@@ -14,7 +15,7 @@ from services.runtime.bus import Bus
 from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
 from services.runtime.session import ZenohSettings, open_session, zenoh_config
-from tests.conftest import ROOT, free_port, wait_alive_async
+from tests.conftest import ROOT, free_port, wait_alive_async, wait_for, wait_until
 
 
 @pytest.fixture(scope="module")
@@ -31,8 +32,13 @@ def secure_router(certs: Path):
     ep = f"tls/localhost:{free_port()}"
     settings = ZenohSettings(mode="router", listen=[ep.replace("localhost", "127.0.0.1")],
                              multicast_scouting=False, config_file=certs / "router.json5")
-    with open_session(settings):
+    conf = zenoh_config(settings)
+    conf.insert_json5("scouting/delay", "0")  # nobody to scout: open at once (as conftest's)
+    session = zenoh.open(conf)
+    try:
         yield ep
+    finally:
+        session.close()
 
 
 def _client(ep: str, config: Path | None) -> ZenohSettings:
@@ -90,8 +96,12 @@ def test_only_the_mission_controller_identity_drives_the_robot(secure_router, ce
             await asyncio.sleep(0.5)
             # the controller's identity:
             laptop.put(IR_COMMAND, IrCommand(command=Command.TURN_LEFT))
-            await asyncio.sleep(1.0)
-            got = [m.command.value for m in iter(heard.get_nowait, None)]
+            got: list[str] = []
+
+            def turned() -> bool:
+                got.extend(m.command.value for m in iter(heard.get_nowait, None))
+                return "turn_left" in got
+            await wait_for(turned, "the laptop's turn_left on the IR port")
             task.cancel()
             viewer.close()
             laptop.close()
@@ -109,10 +119,13 @@ def test_the_vision_identity_cannot_command_the_humanoid(secure_router, certs: P
         sub = b.declare_subscriber("shepherd/ir/command", lambda s: got.append(b"x"))
         frames: list[bytes] = []
         sub2 = b.declare_subscriber("shepherd/camera/frame", lambda s: frames.append(b"x"))
-        time.sleep(0.5)
+        pub = a.declare_publisher("shepherd/camera/frame")
+        matching: Any = pub  # zenoh's stub says bool; at run time a MatchingStatus
+        wait_until(lambda: matching.matching_status.matching, "b's frame subscriber seen by a")
         a.put("shepherd/ir/command", IrCommand(command=Command.STOP).model_dump_json())
-        a.put("shepherd/camera/frame", b"pixels")
-        time.sleep(0.5)
+        pub.put(b"pixels")  # after the command, on the same link: it arrives after it
+        wait_until(lambda: frames, "the frame (allowed)")
+        pub.undeclare()
         sub.undeclare()
         sub2.undeclare()
     assert got == [] and frames == [b"x"]
@@ -128,9 +141,13 @@ def test_a_viewer_cannot_answer_queries_a_service_serves(secure_router, certs: P
                                         lambda q: q.reply(q.key_expr, b"fake"))
         real = robot.declare_queryable("shepherd/camera/intrinsics",
                                        lambda q: q.reply(q.key_expr, b"real"))
-        time.sleep(0.5)
-        answers = [r.ok.payload.to_bytes() for r in
-                   laptop.get("shepherd/camera/intrinsics", timeout=1.0) if r.ok is not None]
+        answers: list[bytes] = []
+
+        def answered() -> bool:
+            answers[:] = [r.ok.payload.to_bytes() for r in laptop.get(
+                "shepherd/camera/intrinsics", timeout=1.0) if r.ok is not None]
+            return bool(answers)
+        wait_until(answered, "an answer on camera/intrinsics")
         fake.undeclare()
         real.undeclare()
     assert answers == [b"real"]
@@ -144,10 +161,15 @@ def test_a_service_token_counts_only_from_its_hosts_role(secure_router, certs: P
                   robot.liveliness().declare_token("shepherd/alive/mission_controller"),
                   robot.liveliness().declare_token("shepherd/alive/pose_estimator"),
                   laptop.liveliness().declare_token("shepherd/alive/camera_planner")]
-        time.sleep(0.5)
         with open_session(_client(secure_router, certs / "viewer.json5")) as watcher:
-            alive = sorted(str(r.ok.key_expr) for r in watcher.liveliness().get(
-                "shepherd/alive/**", timeout=1.0) if r.ok is not None)
+            alive: list[str] = []
+
+            def seen() -> bool:  # the believed tokens (a loaded machine takes its time)
+                alive[:] = sorted(str(r.ok.key_expr) for r in watcher.liveliness().get(
+                    "shepherd/alive/**", timeout=1.0) if r.ok is not None)
+                return {"shepherd/alive/camera_planner", "shepherd/alive/pose_estimator"
+                        } <= set(alive)
+            wait_until(seen, "the camera planner's and pose estimator's tokens")
         for t in tokens:
             t.undeclare()
     # the mission controller's token from the viewer or the vision host is not believed

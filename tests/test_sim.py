@@ -1,4 +1,5 @@
 import asyncio
+import contextlib
 import math
 import zlib
 from pathlib import Path
@@ -8,6 +9,7 @@ import numpy as np
 import pytest
 
 from schemas import Command
+from schemas.keys import FRAME
 from services.core.camera import CameraModel
 from services.core.mounts import Geometry
 from services.core.world import CircleObstacle, PolygonObstacle, World
@@ -18,7 +20,7 @@ from services.sim.humanoid import Humanoid, HumanoidParams
 from services.sim.render import RenderStyle, coverage_mask, render_view
 from services.sim.scenes import marker_pose, random_views
 from services.sim.webcam import srgb_to_linear
-from tests.conftest import run_cli
+from tests.conftest import cli_here, wait_for, wait_matched_key
 
 
 def test_projection_matches_opencv_with_distortion_and_adds_skew():
@@ -181,7 +183,7 @@ def test_camera_robot_stops_short_of_an_obstacle():
 
 
 def test_sim_snapshot_of_a_fresh_scene(tmp_path: Path):
-    out = run_cli("sim", "snapshot", "--fresh", "--out", str(tmp_path / "f.png"))
+    out = cli_here("sim", "snapshot", "--fresh", "--out", str(tmp_path / "f.png"))
     assert out.returncode == 0, out.stderr
     img = cv2.imread(str(tmp_path / "f.png"))
     assert img is not None and img.shape == (480, 640, 3)
@@ -191,7 +193,7 @@ def test_sim_snapshot_of_a_fresh_scene(tmp_path: Path):
 
 @pytest.mark.slow
 def test_frame_source_publishes_an_image_folder_and_survives_a_missing_device(
-        tmp_path: Path, router, make_bus):
+        tmp_path: Path, router, make_bus, sessions):
     folder = tmp_path / "imgs"
     folder.mkdir()
     for i in range(3):
@@ -209,18 +211,26 @@ def test_frame_source_publishes_an_image_folder_and_survives_a_missing_device(
 
     async def go():
         frames = bus.subscribe_frames(latest=False, queue=64)
-        await asyncio.sleep(0.3)
+        await wait_matched_key(sessions(), bus.keys.key(FRAME))  # the router has our subscriber
         await run_deployment(looping, duration=2.0)
-        await asyncio.sleep(0.3)
-        got = [frames.get_nowait() for _ in range(frames.pending())]
+        got: list = []
+
+        def taken(n: int) -> bool:  # frames may still be on their way
+            got.extend(iter(frames.get_nowait, None))
+            return len(got) >= n
+        with contextlib.suppress(pytest.fail.Exception):  # the assert below says how many
+            await wait_for(lambda: taken(20), "20 frames", timeout=10)
         # (the very first frame may go out before the new session has seen our subscriber)
         seqs = [f.header.seq for f in got]
         levels = [int(f.image[0, 0, 0]) for f in got]
         assert len(got) >= 20 and seqs == list(range(seqs[0], seqs[0] + len(seqs)))
         assert levels == [[0, 40, 80][s % 3] for s in seqs]  # the folder, in name order, looped
         await asyncio.wait_for(run_deployment(once), 15)  # not looping: ends by itself
-        await asyncio.sleep(0.3)
-        tail = [f.header.seq for f in [frames.get_nowait() for _ in range(frames.pending())]]
+        got.clear()
+        with contextlib.suppress(pytest.fail.Exception):
+            await wait_for(lambda: taken(1) and got[-1].header.seq == 2, "the last image",
+                           timeout=10)
+        tail = [f.header.seq for f in got]
         assert tail and tail[-1] == 2 and tail == sorted(tail)
         # a device that is not there: the service keeps retrying, never crashes
         code = await run_deployment(missing, duration=1.5)

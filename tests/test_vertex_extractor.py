@@ -1,17 +1,19 @@
 import asyncio
 import math
+import time
 
 import cv2
 import numpy as np
 import pytest
 
-from schemas import MarkerVertices
+from schemas import MarkerVertices, ServiceStats
 from schemas.keys import FRAME, VERTICES
 from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
 from services.sim.scenes import random_views
 from services.vertex_extractor.extractor import RhombusExtractor
 from services.vertex_extractor.lines import best_split
+from tests.conftest import wait_alive_async, wait_matched
 from tests.helpers.fake_frames import publish_frame, render_marker
 
 
@@ -129,23 +131,31 @@ def test_service_publishes_vertices_and_survives_bad_frames(router, make_bus):
 
     async def go():
         out = bus.subscribe(VERTICES, MarkerVertices, latest=False, queue=32)
-        service = asyncio.create_task(run_deployment(dep, duration=12))
-        await asyncio.sleep(1.5)
+        service = asyncio.create_task(run_deployment(dep, duration=60))
+        await wait_alive_async(bus.session, "vertex_extractor")
+        await wait_matched(bus, FRAME)
         key = bus.keys.key(FRAME)
         bus.session.put(key, b"", attachment=b'{"seq":1,"stamp_ns":1,"width":640,'
                                              b'"height":480,"encoding":"bgr8"}')
         bus.session.put(key, b"x" * 100, attachment=b'{"seq":2,"stamp_ns":1,"width":640,'
                                                     b'"height":480,"encoding":"bgr8"}')
-        await asyncio.sleep(0.2)
-        publish_frame(bus, np.zeros((480, 640, 3), np.uint8), 3)
-        await asyncio.sleep(0.3)
-        publish_frame(bus, cv2.cvtColor(r.image, cv2.COLOR_BGR2GRAY), 4)
-        await asyncio.sleep(0.3)
-        publish_frame(bus, r.image, 5)
+
+        async def rejected() -> int:
+            stats = await bus.get("stats/vertex_extractor", ServiceStats)
+            return sum(stats[0].rejected.get(key, {}).values()) if stats else 0
+        deadline = time.monotonic() + 30
+        while await rejected() == 0:  # counted by the service's bus (the newer one, at least)
+            assert time.monotonic() < deadline, "the bad frames were never counted"
+            await asyncio.sleep(0.05)
         msgs = {}
-        while 5 not in msgs:
-            m = await out.recv(timeout=5)
-            msgs[m.seq] = m
+        # one frame at a time (the service takes the newest frame: one sent before the last
+        # was taken would be skipped)
+        for seq, image in ((3, np.zeros((480, 640, 3), np.uint8)),
+                           (4, cv2.cvtColor(r.image, cv2.COLOR_BGR2GRAY)), (5, r.image)):
+            publish_frame(bus, image, seq)
+            while seq not in msgs:
+                m = await out.recv(timeout=30)
+                msgs[m.seq] = m
         service.cancel()
         assert not msgs[3].found and "no marker" in msgs[3].reason
         assert not msgs[4].found and "mono8" in msgs[4].reason

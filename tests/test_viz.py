@@ -24,7 +24,9 @@ from services.viz.convert import floor_scene, image, image_annotations
 from tests.conftest import ROOT, free_port, wait_alive_async
 from tests.helpers.fake_frames import publish_frame, render_marker
 
-pytestmark = pytest.mark.slow  # end-to-end: left out of `make test-fast`
+# end-to-end: left out of `make test-fast`; on one xdist worker, so that the npm install of
+# the foxglove client (a session fixture) happens once
+pytestmark = [pytest.mark.slow, pytest.mark.xdist_group("foxglove")]
 
 VERTS = MarkerVertices(seq=1, stamp_ns=5, found=True, vertices_px=((10, 20), (20, 10),
                                                                    (30, 20), (20, 30)),

@@ -1,8 +1,6 @@
 """The simulator's webcam, and the marker found and measured through it: default colour model,
 learned inks (``shepherd marker learn`` / ``colour_file``), no markers in photographs."""
 
-import subprocess
-import sys
 from dataclasses import replace
 
 import cv2
@@ -19,6 +17,7 @@ from services.sim.webcam import WebcamParams, expose, linear_to_srgb, srgb_to_li
 from services.vertex_extractor.colour import ColourModel
 from services.vertex_extractor.extractor import ExtractorParams, RhombusExtractor
 from services.vertex_extractor.learn import LearnError, learn, write_colour_file
+from tests.conftest import cli_here
 
 pytestmark = pytest.mark.skipif(not textures.have_photos(),
                                 reason="scikit-image (dev extra) ships the photographs")
@@ -150,9 +149,7 @@ def test_learn_refuses_an_image_without_the_marker(tmp_path):
     cv2.imwrite(str(path), _photographs(1)[0])
     with pytest.raises(LearnError, match=r"room\.png: no marker found"):
         learn([("room.png", cv2.imread(str(path)))])
-    out = subprocess.run([sys.executable, "-m", "services.tools.cli", "marker", "learn",
-                          str(path), "--out", str(tmp_path / "x.toml")],
-                         capture_output=True, text=True)
+    out = cli_here("marker", "learn", str(path), "--out", str(tmp_path / "x.toml"))
     assert out.returncode == 2 and "no marker found" in out.stderr
     assert not (tmp_path / "x.toml").exists()
 

@@ -35,6 +35,7 @@ class Pty:
             self.link.unlink()
         self.link.symlink_to(os.ttyname(slave))
         self._got = bytearray()
+        self.acks = 0  # acknowledgements the firmware wrote back
         self._lock = threading.Lock()
         self._stop = threading.Event()
         if self.firmware:
@@ -61,6 +62,7 @@ class Pty:
             for byte in data:
                 if byte >= 0x80 and self.ack:
                     os.write(self.master, bytes([byte]))
+                    self.acks += 1
                 elif 0 < byte < 0x80:
                     os.write(self.master, bytes([REFUSED]))
 
