@@ -112,6 +112,10 @@ def vertex_sigma(vertices_cov_px2: object | None, fallback_px: float) -> float:
     return math.sqrt(var) if var > 1e-6 else fallback_px
 
 
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
 def _exp_so3(w: np.ndarray) -> np.ndarray:
     th = float(np.linalg.norm(w))
     K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
@@ -269,6 +273,7 @@ class MarkerSequence:
         self.previous: tuple[int, np.ndarray] | None = None  # (stamp_ns, R) of the last pose
         self.mount = MountCheck(up_cam) if up_cam is not None else None
         self.mount_d: np.ndarray | None = None  # the correction in use (rad), or None
+        self.mount_cov: np.ndarray | None = None  # its 3 x 3 covariance (rad^2)
 
     @property
     def R_mount_correction(self) -> np.ndarray:
@@ -280,6 +285,8 @@ class MarkerSequence:
         d = self.mount.correction() if self.mount is not None and \
             self.params.mount_correction else None
         self.mount_d = d
+        solved = self.mount.solved() if d is not None and self.mount is not None else None
+        self.mount_cov = None if solved is None else solved[1]
         if self.up_file is not None:
             self.up_cam = self.up_file if d is None else _exp_so3(d) @ self.up_file
 
@@ -325,6 +332,11 @@ class MarkerSequence:
             self.mount.add(min(mp.candidates, key=lambda c: rotation_angle(
                 c[:3, :3], T[:3, :3]))[:3, :3])
         cov = self._covariance(T, v, sigma_px, vertices_cov_px2)
+        if self.mount_cov is not None:
+            # the corrected mount's own uncertainty: a mount turned by e (camera frame) turns
+            # the marker's pose about the camera, (w, t) by (e, e x t)
+            G = np.vstack([np.eye(3), -_skew(T[:3, 3])])
+            cov += G @ self.mount_cov @ G.T
         reason = ""
         pair = self._pair(T[:3, :3], mp.candidates)
         if pair is not None and self.up_cam is not None:
