@@ -159,7 +159,7 @@ class MountCheck:
                  max_tilt_deg: float = 30.0, window_frames: int = 900,
                  settle_sigma_deg: float = 1.0, significant_sigmas: float = 4.0,
                  min_correct_deg: float = MOUNT_MIN_CORRECT_DEG,
-                 correlated_frames: float = 5.0, jump_frames: int = 30,
+                 correlated_frames: float = 12.0, jump_frames: int = 30,
                  jump_deg: float = 3.0) -> None:
         self.up = np.asarray(up_cam, np.float64)
         self.min_frames, self.alert_deg = min_frames, alert_deg
@@ -177,18 +177,21 @@ class MountCheck:
     def frames(self) -> int:
         return len(self.normals)
 
-    def add(self, R_image: np.ndarray) -> None:
-        """One frame's marker rotation from the image alone."""
+    def add(self, R_image: np.ndarray, distance_m: float = 0.3) -> None:
+        """One frame's marker rotation from the image alone, seen ``distance_m`` away (the
+        lean's noise grows with the distance: the frame weighs (0.3 m / distance)^2)."""
         n = np.asarray(R_image, np.float64)[:, 2]
         if abs(float(n @ self.up)) > self.max_tilt:  # not a standing humanoid's marker
             return
-        self.normals.append(n)
+        w = min((0.3 / max(distance_m, 1e-3)) ** 2, 4.0)
+        self.normals.append(np.append(n, w))
         self._solved = None
         if self.frames >= self.min_frames + self.jump_frames and \
                 self.frames % self.jump_frames == 0:
             # the last frames' mean lean off the up the earlier ones settled on
             d, _ = self._solve(np.array(self.normals)[:-self.jump_frames])
-            r = np.array(self.normals)[-self.jump_frames:] @ (_exp_so3(d) @ self.up)
+            last = np.array(self.normals)[-self.jump_frames:]
+            r = last[:, :3] @ (_exp_so3(d) @ self.up)
             noise = float(np.std(r)) * math.sqrt(self.correlated_frames / len(r))
             if abs(float(np.mean(r))) > max(math.sin(self.jump), 3.0 * noise):
                 recent = list(self.normals)[-self.jump_frames:]
@@ -196,20 +199,21 @@ class MountCheck:
                 self.normals.extend(recent)
                 self.resets += 1
 
-    def _solve(self, N: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """(d rad, its 3 x 3 covariance) from the normals ``N`` (k x 3)."""
+    def _solve(self, Nw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(d rad, its 3 x 3 covariance) from the normals and weights ``Nw`` (k x 4)."""
+        N, w = Nw[:, :3], Nw[:, 3]
         k = len(N)
-        ridge = (np.outer(self.up, self.up) + 0.02 * np.eye(3)) * k
+        ridge = (np.outer(self.up, self.up) + 0.02 * np.eye(3)) * float(w.sum())
         d = np.zeros(3)
         for _ in range(3):
             u = _exp_so3(d) @ self.up
             r = N @ u                       # each frame's lean off the level
             J = np.cross(u, N)              # d r / d d (left increment)
-            A = J.T @ J + ridge
-            d = d - np.linalg.solve(A, J.T @ r + ridge @ d)
+            A = (J * w[:, None]).T @ J + ridge
+            d = d - np.linalg.solve(A, (J * w[:, None]).T @ r + ridge @ d)
         u = _exp_so3(d) @ self.up
         r = N @ u
-        s2 = float(r @ r) / max(k - 2, 1)
+        s2 = float(w @ (r * r)) / max(k - 2, 1)
         cov = s2 * min(self.correlated_frames, float(k)) * np.linalg.inv(A)
         return d, cov
 
@@ -330,7 +334,7 @@ class MarkerSequence:
         T = mp.T_camera_marker.copy()
         if self.mount is not None:
             self.mount.add(min(mp.candidates, key=lambda c: rotation_angle(
-                c[:3, :3], T[:3, :3]))[:3, :3])
+                c[:3, :3], T[:3, :3]))[:3, :3], float(np.linalg.norm(T[:3, 3])))
         cov = self._covariance(T, v, sigma_px, vertices_cov_px2)
         if self.mount_cov is not None:
             # the corrected mount's own uncertainty: a mount turned by e (camera frame) turns
