@@ -237,7 +237,7 @@ def experiment(camera: CameraModel, quick: bool = False
             pose = est.estimate(msg)
             if pose.x is not None:
                 correcting.append(est.sequence.mount_d is not None)
-            if warning := est.mount_warning():
+            if (warning := est.mount_warning()) and est.config.mount_correction:
                 told.append(warning)
             return pose
         sc = track(frames, estimate)
