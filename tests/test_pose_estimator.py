@@ -551,6 +551,7 @@ def test_webcam_sequences_at_the_marker_height_meet_the_heading_and_covariance_g
         sc = ps.track(ps.render(seq, seed=i, jpeg=jpeg), est.estimate)
         err = np.abs(sc.heading_err_deg)
         assert len(err) >= 0.9 * sc.frames
+        assert est.sequence.mount_d is None  # a correct mount is never corrected
         assert sc.bad(5.0) == 0, seq.name
         if seq.name.startswith("walk"):
             assert np.median(err) <= 0.5 and np.percentile(err, 95) <= 2.0, seq.name
