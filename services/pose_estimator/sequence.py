@@ -24,7 +24,9 @@ this module adds what the frames before it know:
   the gait, ``rock_sigma_rad``), which moves the floor position the marker implies. Over the
   webcam sequences its normalised estimation error squared of (x, y, yaw) averages 2.4.
 - **the mount**: ``MountCheck`` estimates from the marker's mean lean how far the real
-  camera mount is off the deployment file's.
+  camera mount is off the deployment file's; once that has settled (and only when it is
+  significant) the sequence uses the estimated up instead of the file's
+  (``mount_correction``), and ``R_mount_correction`` tells the world composition.
 """
 
 from __future__ import annotations
