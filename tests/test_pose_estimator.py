@@ -553,6 +553,7 @@ def test_webcam_sequences_at_the_marker_height_meet_the_heading_and_covariance_g
         sc = ps.track(ps.render(seq, seed=i, jpeg=jpeg), est.estimate)
         err = np.abs(sc.heading_err_deg)
         assert len(err) >= 0.9 * sc.frames
+        assert est.sequence.mount_d is None  # a correct mount is never corrected
         assert sc.bad(5.0) == 0, seq.name
         if seq.name.startswith("walk"):
             assert np.median(err) <= 0.5 and np.percentile(err, 95) <= 2.0, seq.name
@@ -563,7 +564,8 @@ def test_webcam_sequences_at_the_marker_height_meet_the_heading_and_covariance_g
 
 def test_a_mount_pitched_off_the_deployment_file_is_detected_and_told():
     """The camera really pitched 8° down, the file says level: the sequence estimates the
-    offset from the marker's mean lean and the service says so once."""
+    offset from the marker's mean lean and the service says so, and again once it corrects
+    the up with it."""
     from services.core.geometry import T_base_camera
     from services.tools.pose_sequences import turn_in_place
     g = Geometry()
@@ -578,7 +580,8 @@ def test_a_mount_pitched_off_the_deployment_file_is_detected_and_told():
                                     vertices_px=tuple(map(tuple, v))))  # type: ignore[arg-type]
         if warning := est.mount_warning():
             told.append(warning)
-    assert len(told) == 1 and "pitched +" in told[0], told  # told once, then quiet
+    assert len(told) == 2 and all("pitched +" in t for t in told), told  # then quiet
+    assert "not corrected" in told[0] and "uses the estimated up" in told[1]
     off = est.sequence.mount.offset_deg() if est.sequence.mount else None
     assert off is not None and abs(off[0] - 8.0) < 1.0 and abs(off[1]) < 1.0
     level = svc.PoseEstimator(CAM, g, svc.Settings(static_camera_pose=(0.0, 0.0, 0.0)))
@@ -630,3 +633,71 @@ def test_a_turn_across_the_line_of_sight_far_away_never_leaves_a_confident_mirro
             uncovered += int(e > 5 and not (est.ambiguous and e <= math.degrees(
                 math.sqrt(P[2, 2]))))
     assert uncovered == 0 and worst < 10.0, (uncovered, worst)
+
+
+def _mount_run(off_deg: float, correction: bool, frames: int = 180, seed: int = 0,
+               then_off_deg: float | None = None
+               ) -> tuple[np.ndarray, np.ndarray, list[bool], object]:
+    """No bus: the sequence turning in place (35 cm, ±30°) before a camera whose real mount
+    is pitched ``off_deg`` off the file's (``then_off_deg`` from the middle on); the world
+    pose composed through the file's mount and the sequence's correction. (position errors
+    m, heading errors deg, correcting per frame, the sequence)."""
+    from services.core.geometry import T_base_camera, make_T
+    from services.pose_estimator.sequence import MarkerSequence, SequenceParams
+    from services.tools.pose_sequences import turn_in_place
+    g = Geometry()
+    T_file = g.T_base_camera()
+    seq = MarkerSequence(CAM, PTS, up_in_camera(T_file),
+                         SequenceParams(mount_correction=correction))
+    rng = np.random.default_rng(seed)
+    truth = turn_in_place(30.0, seed, seconds=frames / 30.0).truth
+    pos, head, correcting = [], [], []
+    for k, (x, y, yaw, _) in enumerate(truth):
+        off = off_deg if then_off_deg is None or k < len(truth) // 2 else then_off_deg
+        T_real = T_base_camera(g.camera_forward_m, g.camera_height_m,
+                               g.camera_pitch_rad + math.radians(off))
+        T = inv_T(T_real) @ T_floor(x, y, yaw) @ g.T_humanoid_marker()
+        v = CAM.project(PTS @ T[:3, :3].T + T[:3, 3]) + rng.normal(0, 0.05, (4, 2))
+        est = seq.update(int(1e12 + k * 33_333_333), v)
+        T_world_camera = T_file @ make_T(seq.R_mount_correction.T, (0.0, 0.0, 0.0))
+        (xe, ye, yawe), _ = humanoid_floor_pose(T_world_camera, est.T_camera_marker,
+                                                inv_T(g.T_humanoid_marker()))
+        pos.append(math.hypot(xe - x, ye - y))
+        head.append(math.degrees(math.remainder(yawe - yaw, 2 * math.pi)))
+        correcting.append(seq.mount_d is not None)
+    return np.array(pos), np.array(head), correcting, seq
+
+
+def test_a_mount_pitched_8_degrees_off_is_corrected_once_the_check_has_settled():
+    """The real mount pitched 8° down, the file level: without the correction the marker-
+    to-feet lever goes through the wrong vertical (about 25 mm off); once the check has
+    settled, the up it found puts the world position back within a few mm."""
+    pos, head, correcting, seq = _mount_run(8.0, True)
+    before, _, never, _ = _mount_run(8.0, False)
+    assert not any(never)
+    settled = correcting.index(True)
+    assert 60 <= settled <= 120 and all(correcting[settled:])  # settles and stays
+    late = slice(settled + 10, None)
+    assert np.percentile(before[late], 95) > 0.015
+    assert np.percentile(pos[late], 95) < 0.005, np.percentile(pos[late], 95)
+    assert np.percentile(np.abs(head[late]), 95) < 1.0
+    assert seq.mount_d is not None and abs(math.degrees(seq.mount_d[0]) - 8.0) < 1.0
+
+
+def test_a_correct_mount_is_never_corrected_and_its_poses_are_unchanged():
+    """The mount as the file says: the correction stays off, every pose identical to the
+    sequence without it."""
+    pos, head, correcting, seq = _mount_run(0.0, True)
+    pos_off, head_off, _, _ = _mount_run(0.0, False)
+    assert not any(correcting)
+    assert seq.mount is not None and (seq.mount.offset_deg() is not None)
+    assert np.array_equal(pos, pos_off) and np.array_equal(head, head_off)
+
+
+def test_the_mount_correction_resets_when_the_evidence_changes():
+    """8° off for 240 frames, then the camera set right (a new mount): the check sees the
+    last frames' lean disagree, restarts, and the correction goes off again."""
+    pos, _, correcting, seq = _mount_run(8.0, True, frames=480, then_off_deg=0.0)
+    assert correcting[200] and not correcting[-1]
+    assert seq.mount is not None and seq.mount.resets >= 1
+    assert np.percentile(pos[-60:], 95) < 0.005

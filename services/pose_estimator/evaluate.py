@@ -140,11 +140,10 @@ def unrelated_views(n: int, seed: int = 0, *, lean_deg: float = 3.0, roll_deg: f
     return out
 
 
-def against_ippe(cases: list[PoseCase], camera: CameraModel | None = None,
-                 **estimator: float) -> tuple[float, float]:
-    """Position error of our estimator (the service's vertex sigma, the views' up vector,
-    ``estimator`` keyword arguments) over OpenCV's IPPE on the same vertices: (median
-    ratio, p90 ratio)."""
+def ippe_errors(cases: list[PoseCase], camera: CameraModel | None = None,
+                **estimator: float) -> tuple[np.ndarray, np.ndarray]:
+    """Position errors (m) of our estimator (the service's vertex sigma, the views' up
+    vector, ``estimator`` keyword arguments) and of OpenCV's IPPE on the same vertices."""
     camera = camera or CameraModel.paper()
     pts = Geometry().marker_points()
     cv = opencv_solver(cv2.SOLVEPNP_IPPE, camera)
@@ -152,8 +151,20 @@ def against_ippe(cases: list[PoseCase], camera: CameraModel | None = None,
         camera, c.vertices_px, pts, up_cam=c.up_cam, sigma_px=VERTEX_SIGMA_PX,
         **estimator).T_camera_marker, c.T_camera_marker)[0] for c in cases])  # type: ignore[arg-type]
     ref = np.array([_errors(cv(c), c.T_camera_marker)[0] for c in cases])
+    return ours, ref
+
+
+def ippe_ratios(ours: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
+    """(median ratio, p90 ratio) of our position errors over OpenCV IPPE's."""
     return (float(np.median(ours) / np.median(ref)),
             float(np.percentile(ours, 90) / np.percentile(ref, 90)))
+
+
+def against_ippe(cases: list[PoseCase], camera: CameraModel | None = None,
+                 **estimator: float) -> tuple[float, float]:
+    """Position error of our estimator over OpenCV's IPPE on the same vertices (see
+    ``ippe_errors``): (median ratio, p90 ratio)."""
+    return ippe_ratios(*ippe_errors(cases, camera, **estimator))
 
 
 def compare(cases: list[PoseCase], camera: CameraModel | None = None

@@ -24,12 +24,15 @@ this module adds what the frames before it know:
   the gait, ``rock_sigma_rad``), which moves the floor position the marker implies. Over the
   webcam sequences its normalised estimation error squared of (x, y, yaw) averages 2.4.
 - **the mount**: ``MountCheck`` estimates from the marker's mean lean how far the real
-  camera mount is off the deployment file's.
+  camera mount is off the deployment file's; once that has settled (and only when it is
+  significant) the sequence uses the estimated up instead of the file's
+  (``mount_correction``), and ``R_mount_correction`` tells the world composition.
 """
 
 from __future__ import annotations
 
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -55,6 +58,9 @@ CONTINUITY_WINDOW_S = 0.3
 #: sends no per-vertex covariance
 NOISE_SIGMA_PX = 0.025
 SCALE_SIGMA_PX = 0.1
+#: the mount correction: on, and the smallest offset it corrects (deg)
+MOUNT_CORRECTION = True
+MOUNT_MIN_CORRECT_DEG = 1.5
 
 
 @dataclass(frozen=True)
@@ -69,6 +75,9 @@ class SequenceParams:
             ``MarkerSequence._covariance``); the estimate itself weighs the vertices with
             ``vertex_sigma_px``.
         merge_sigmas: candidates closer in heading than this many heading sigmas are one.
+        mount_correction: once the mount check has settled on a significant offset, the
+            upright prior and the world composition use the estimated up instead of the
+            deployment file's.
     """
 
     continuity_window_s: float = CONTINUITY_WINDOW_S
@@ -79,6 +88,7 @@ class SequenceParams:
     noise_sigma_px: float = NOISE_SIGMA_PX
     scale_sigma_px: float = SCALE_SIGMA_PX
     merge_sigmas: float = 2.0
+    mount_correction: bool = MOUNT_CORRECTION
 
 
 @dataclass(frozen=True)
@@ -104,6 +114,10 @@ def vertex_sigma(vertices_cov_px2: object | None, fallback_px: float) -> float:
     return math.sqrt(var) if var > 1e-6 else fallback_px
 
 
+def _skew(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
 def _exp_so3(w: np.ndarray) -> np.ndarray:
     th = float(np.linalg.norm(w))
     K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
@@ -124,52 +138,131 @@ def heading_about(up: np.ndarray, Ra: np.ndarray, Rb: np.ndarray) -> float:
 class MountCheck:
     """Is the world's up where the deployment file's mount puts it? Over a sequence.
 
-    The humanoid stands upright, so the marker's normal, from the image alone (the IPPE
+    The humanoid stands upright, so the marker's normal ``n``, from the image alone (the IPPE
     candidate, no prior), is level on average. With the real mount turned by a small
-    rotation ``d`` (camera frame) from the file's, each frame's ``n . up_file`` is about
-    ``d . (n x up_file)``: a linear least squares over the frames gives ``d``, reported as
-    the camera's pitch (about its x) and roll (about its z) off the file.
+    rotation ``d`` (camera frame) from the file's, the true up is ``exp(d) up_file`` and each
+    frame's ``n . exp(d) up_file`` is zero up to the noise: a Gauss-Newton least squares over
+    the frames (relinearised, so 8° is not shortened) gives ``d``, reported as the camera's
+    pitch (about its x) and roll (about its z) off the file. A ridge keeps a direction the
+    views hardly see (the roll, from a marker always seen face-on) near zero, and ``d``
+    about the up itself (a turn the lean cannot see) at zero.
+
+    The estimate's uncertainty is the residual spread over the information, inflated for
+    frames that are not independent (``correlated_frames`` in a row say little more than
+    one). Once settled (``min_frames``, sigma under ``settle_sigma_deg``, the offset beyond
+    ``significant_sigmas`` sigmas and ``min_correct_deg``) ``correction()`` returns ``d``;
+    a correct mount stays below that and is never corrected. When the last
+    ``jump_frames`` frames disagree with the settled estimate by more than ``jump_deg``
+    (and their own noise), the evidence changed (the camera knocked, a new mount): the check
+    restarts from those frames.
     """
 
     def __init__(self, up_cam: np.ndarray, min_frames: int = 60, alert_deg: float = 3.0,
-                 max_tilt_deg: float = 30.0) -> None:
+                 max_tilt_deg: float = 30.0, window_frames: int = 900,
+                 settle_sigma_deg: float = 1.0, significant_sigmas: float = 4.0,
+                 min_correct_deg: float = MOUNT_MIN_CORRECT_DEG,
+                 correlated_frames: float = 12.0, jump_frames: int = 30,
+                 jump_deg: float = 3.0) -> None:
         self.up = np.asarray(up_cam, np.float64)
         self.min_frames, self.alert_deg = min_frames, alert_deg
         self.max_tilt = math.sin(math.radians(max_tilt_deg))
-        self.A = np.zeros((3, 3))
-        self.b = np.zeros(3)
-        self.frames = 0
+        self.settle_sigma = math.radians(settle_sigma_deg)
+        self.significant_sigmas = significant_sigmas
+        self.min_correct = math.radians(min_correct_deg)
+        self.correlated_frames = correlated_frames
+        self.jump_frames, self.jump = jump_frames, math.radians(jump_deg)
+        self.normals: deque[np.ndarray] = deque(maxlen=window_frames)
+        self.resets = 0
+        self._solved: tuple[np.ndarray, np.ndarray] | None = None
 
-    def add(self, R_image: np.ndarray) -> None:
-        """One frame's marker rotation from the image alone."""
-        n = R_image[:, 2]
-        m = float(n @ self.up)
-        if abs(m) > self.max_tilt:  # not a standing humanoid's marker (or a bad frame)
+    @property
+    def frames(self) -> int:
+        return len(self.normals)
+
+    def add(self, R_image: np.ndarray, distance_m: float = 0.3) -> None:
+        """One frame's marker rotation from the image alone, seen ``distance_m`` away (the
+        lean's noise grows with the distance: the frame weighs (0.3 m / distance)^2)."""
+        n = np.asarray(R_image, np.float64)[:, 2]
+        if abs(float(n @ self.up)) > self.max_tilt:  # not a standing humanoid's marker
             return
-        a = np.cross(n, self.up)
-        self.A += np.outer(a, a)
-        self.b += a * m
-        self.frames += 1
+        w = min((0.3 / max(distance_m, 1e-3)) ** 2, 4.0)
+        self.normals.append(np.append(n, w))
+        self._solved = None
+        if self.frames >= self.min_frames + self.jump_frames and \
+                self.frames % self.jump_frames == 0:
+            # the last frames' mean lean off the up the earlier ones settled on
+            d, _ = self._solve(np.array(self.normals)[:-self.jump_frames])
+            last = np.array(self.normals)[-self.jump_frames:]
+            r = last[:, :3] @ (_exp_so3(d) @ self.up)
+            noise = float(np.std(r)) * math.sqrt(self.correlated_frames / len(r))
+            if abs(float(np.mean(r))) > max(math.sin(self.jump), 3.0 * noise):
+                recent = list(self.normals)[-self.jump_frames:]
+                self.normals.clear()
+                self.normals.extend(recent)
+                self.resets += 1
+
+    def _solve(self, Nw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(d rad, its 3 x 3 covariance) from the normals and weights ``Nw`` (k x 4)."""
+        N, w = Nw[:, :3], Nw[:, 3]
+        k = len(N)
+        ridge = (np.outer(self.up, self.up) + 0.02 * np.eye(3)) * float(w.sum())
+        d = np.zeros(3)
+        for _ in range(3):
+            u = _exp_so3(d) @ self.up
+            r = N @ u                       # each frame's lean off the level
+            J = np.cross(u, N)              # d r / d d (left increment)
+            A = (J * w[:, None]).T @ J + ridge
+            d = d - np.linalg.solve(A, (J * w[:, None]).T @ r + ridge @ d)
+        u = _exp_so3(d) @ self.up
+        r = N @ u
+        s2 = float(w @ (r * r)) / max(k - 2, 1)
+        cov = s2 * min(self.correlated_frames, float(k)) * np.linalg.inv(A)
+        return d, cov
+
+    def solved(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """(d rad, covariance) or None before ``min_frames``."""
+        if self.frames < self.min_frames:
+            return None
+        if self._solved is None:
+            self._solved = self._solve(np.array(self.normals))
+        return self._solved
 
     def offset_deg(self) -> tuple[float, float] | None:
         """(pitch, roll) of the real mount off the file's, deg (camera x and z), or None
         before ``min_frames``."""
-        if self.frames < self.min_frames:
+        s = self.solved()
+        if s is None:
             return None
-        # a ridge: a direction the views hardly see (the roll, from a marker always seen
-        # face-on) stays near zero instead of following the noise
-        A = self.A + (np.outer(self.up, self.up) + 0.02 * np.eye(3)) * self.frames
-        d = np.linalg.solve(A, self.b)
-        return math.degrees(float(d[0])), math.degrees(float(d[2]))
+        return math.degrees(float(s[0][0])), math.degrees(float(s[0][2]))
 
-    def message(self) -> str:
+    def sigma_deg(self) -> float | None:
+        """1-sigma of the offset's size (deg), or None before ``min_frames``."""
+        s = self.solved()
+        return None if s is None else math.degrees(math.sqrt(max(float(np.trace(s[1])), 0.0)))
+
+    def correction(self) -> np.ndarray | None:
+        """``d`` (rad, camera frame; the true up is ``exp(d) up_file``) once settled and
+        significant, else None."""
+        s = self.solved()
+        if s is None:
+            return None
+        d, cov = s
+        size, sigma = float(np.linalg.norm(d)), math.sqrt(max(float(np.trace(cov)), 0.0))
+        if sigma > self.settle_sigma or size < max(self.significant_sigmas * sigma,
+                                                   self.min_correct):
+            return None
+        return d
+
+    def message(self, correcting: bool = False) -> str:
         """A warning when the mount looks more than ``alert_deg`` off, else ""."""
-        off = self.offset_deg()
-        if off is None or math.hypot(*off) < self.alert_deg:
+        off, sigma = self.offset_deg(), self.sigma_deg()
+        if off is None or sigma is None or math.hypot(*off) < self.alert_deg:
             return ""
-        return (f"the marker leans {math.hypot(*off):.1f}° on average over {self.frames} "
-                f"frames: the camera mount looks pitched {off[0]:+.1f}° and rolled "
-                f"{off[1]:+.1f}° off the deployment file's (check camera_pitch_rad)")
+        return (f"the marker leans {math.hypot(*off):.1f}° ± {sigma:.1f}° on average over "
+                f"{self.frames} frames: the camera mount looks pitched {off[0]:+.1f}° and "
+                f"rolled {off[1]:+.1f}° off the deployment file's (check camera_pitch_rad); "
+                + ("the pose uses the estimated up" if correcting else
+                   "not corrected (mount_correction off or not settled)"))
 
 
 class MarkerSequence:
@@ -179,11 +272,29 @@ class MarkerSequence:
                  params: SequenceParams | None = None) -> None:
         self.camera = camera
         self.points = points
-        self.up_cam = up_cam
+        self.up_file = up_cam   # the deployment file's up (camera frame)
+        self.up_cam = up_cam    # the up the estimate uses: the file's, or corrected
         self.params = params or SequenceParams()
         self.branches = BranchTracker()
         self.previous: tuple[int, np.ndarray] | None = None  # (stamp_ns, R) of the last pose
         self.mount = MountCheck(up_cam) if up_cam is not None else None
+        self.mount_d: np.ndarray | None = None  # the correction in use (rad), or None
+        self.mount_cov: np.ndarray | None = None  # its 3 x 3 covariance (rad^2)
+
+    @property
+    def R_mount_correction(self) -> np.ndarray:
+        """The rotation (camera frame) from the file's up to the one in use: the real
+        ``T_base_camera`` is the file's times ``make_T(R_mount_correction.T, 0)``."""
+        return np.eye(3) if self.mount_d is None else _exp_so3(self.mount_d)
+
+    def _correct_mount(self) -> None:
+        d = self.mount.correction() if self.mount is not None and \
+            self.params.mount_correction else None
+        self.mount_d = d
+        solved = self.mount.solved() if d is not None and self.mount is not None else None
+        self.mount_cov = None if solved is None else solved[1]
+        if self.up_file is not None:
+            self.up_cam = self.up_file if d is None else _exp_so3(d) @ self.up_file
 
     def reset(self) -> None:
         self.branches.reset()
@@ -193,6 +304,7 @@ class MarkerSequence:
                vertices_cov_px2: object | None = None) -> SequenceEstimate:
         """Raises PoseError when the vertices give no pose."""
         p = self.params
+        self._correct_mount()
         recent = self.previous is not None and \
             abs(stamp_ns - self.previous[0]) < p.continuity_window_s * 1e9
         if not recent:
@@ -224,8 +336,13 @@ class MarkerSequence:
         T = mp.T_camera_marker.copy()
         if self.mount is not None:
             self.mount.add(min(mp.candidates, key=lambda c: rotation_angle(
-                c[:3, :3], T[:3, :3]))[:3, :3])
+                c[:3, :3], T[:3, :3]))[:3, :3], float(np.linalg.norm(T[:3, 3])))
         cov = self._covariance(T, v, sigma_px, vertices_cov_px2)
+        if self.mount_cov is not None:
+            # the corrected mount's own uncertainty: a mount turned by e (camera frame) turns
+            # the marker's pose about the camera, (w, t) by (e, e x t)
+            G = np.vstack([np.eye(3), -_skew(T[:3, 3])])
+            cov += G @ self.mount_cov @ G.T
         reason = ""
         pair = self._pair(T[:3, :3], mp.candidates)
         if pair is not None and self.up_cam is not None:

@@ -19,7 +19,7 @@ from schemas import (
 )
 from schemas.keys import HUMANOID_POSE, HUMANOID_POSE_FILTERED, INTRINSICS, ODOM, VERTICES
 from services.core.camera import CameraModel
-from services.core.geometry import T_floor, inv_T, quaternion_from_R
+from services.core.geometry import T_floor, inv_T, make_T, quaternion_from_R
 from services.pose_estimator.estimate import (
     TILT_SIGMA_DEG,
     VERTEX_SIGMA_PX,
@@ -32,6 +32,7 @@ from services.pose_estimator.p4p import PoseError
 from services.pose_estimator.pose_filter import FilterParams, PoseFilter
 from services.pose_estimator.sequence import (
     CONTINUITY_WINDOW_S,
+    MOUNT_CORRECTION,
     NOISE_SIGMA_PX,
     ROCK_SIGMA_DEG,
     SCALE_SIGMA_PX,
@@ -68,6 +69,10 @@ class Settings(ServiceSettings):
     rock_sigma_deg: float = Field(default=ROCK_SIGMA_DEG, ge=0.0, le=20.0, description=(
         "the marker's roll about its normal with the gait (1-sigma, deg): the body rocks "
         "about its feet, moving the floor position the marker implies"))
+    mount_correction: bool = Field(default=MOUNT_CORRECTION, description=(
+        "once the marker's mean lean over a sequence has settled on a real camera mount "
+        "significantly off the deployment file's, use the estimated up for the upright "
+        "prior and the world pose"))
 
 
 class PoseEstimator:
@@ -83,13 +88,14 @@ class PoseEstimator:
         self.odom = OdometryBuffer(maxlen=64)
         self.odom_stalled = False  # the last wait for odometry ran out; none since
         self.steady = PoseFilter(config.filter)
-        self._mount_told: tuple[float, float] | None = None
+        self._mount_told: tuple[float, float, bool] | None = None
         self.sequence = MarkerSequence(camera, self.points, self.up_cam, SequenceParams(
             continuity_window_s=config.continuity_window_s,
             vertex_sigma_px=config.vertex_sigma_px,
             tilt_sigma_rad=math.radians(config.tilt_sigma_deg), refine=config.refine,
             rock_sigma_rad=math.radians(config.rock_sigma_deg),
-            noise_sigma_px=config.noise_sigma_px, scale_sigma_px=config.scale_sigma_px))
+            noise_sigma_px=config.noise_sigma_px, scale_sigma_px=config.scale_sigma_px,
+            mount_correction=config.mount_correction))
 
     def estimate(self, msg: MarkerVertices) -> HumanoidPose:
         """Raises PoseError when the vertices give no pose (or one no message can carry)."""
@@ -116,7 +122,9 @@ class PoseEstimator:
                                 reprojection_px=mp.reprojection_px,
                                 reason="; ".join(r for r in (reason, note) if r),
                                 area_ratio=msg.area_ratio)
-        T_world_camera = T_floor(*base_pose) @ self.T_base_camera
+        # the mount the sequence found (identity unless it corrects the file's)
+        T_world_camera = T_floor(*base_pose) @ self.T_base_camera @ make_T(
+            self.sequence.R_mount_correction.T, (0.0, 0.0, 0.0))
         (x, y, yaw), cov = humanoid_floor_pose(T_world_camera, T, self.T_marker_humanoid,
                                                mp.covariance)
         cov_rows = tuple(map(tuple, cov.tolist())) if cov is not None else None
@@ -127,15 +135,20 @@ class PoseEstimator:
 
     def mount_warning(self) -> str:
         """A message the first time the frames say the camera mount is off the deployment
-        file's (and again whenever that estimate moves by more than 2°), else ""."""
+        file's (and again whenever that estimate moves by more than 2° or the correction
+        starts or stops), else ""."""
         mount = self.sequence.mount
         off = mount.offset_deg() if mount is not None else None
-        if mount is None or off is None or not (message := mount.message()):
+        correcting = self.sequence.mount_d is not None
+        if mount is None or off is None or not (message := mount.message(correcting)):
+            if self._mount_told is not None and self._mount_told[2] and not correcting:
+                self._mount_told = None
+                return "the camera mount correction is off again (the evidence changed)"
             return ""
-        if self._mount_told is not None and math.hypot(
+        if self._mount_told is not None and self._mount_told[2] == correcting and math.hypot(
                 off[0] - self._mount_told[0], off[1] - self._mount_told[1]) <= 2.0:
             return ""
-        self._mount_told = off
+        self._mount_told = (off[0], off[1], correcting)
         return message
 
     def filtered(self, pose: HumanoidPose) -> HumanoidPose | None:

@@ -399,9 +399,12 @@ def run(out: Path, quick: bool = False) -> int:
               "not marked ambiguous with its heading sigma covering the error. Goal: walking away "
               "heading median <= 0.5°, p95 <= 2°, position p95 <= 6 mm; none not covered; "
               "NEES 2-4.5.", "",
-              "The last row: the camera's real mount pitched 8° down while the deployment "
-              "file says level (the upright prior is then 8° wrong on every frame; its "
-              f"heavy tails keep the cost small). The mount check said: _{mount}_.", ""]
+              "The last two rows: the camera's real mount pitched 8° down while the "
+              "deployment file says level (the upright prior is then 8° wrong and the "
+              "marker-to-feet lever goes through the wrong vertical), without and with the "
+              "mount correction (`mount_correction`: once the marker's mean lean has "
+              "settled, the estimated up replaces the file's; the first ~60 frames are "
+              f"before it settles). The mount check said: _{mount}_.", ""]
 
     _progress("Fig. 10: spread against area ratio")
     rs, ds, stds = std_vs_distance(trials)

@@ -12,8 +12,9 @@ from services.core.mounts import Geometry
 from services.pose_estimator.estimate import estimate_marker_pose
 from services.pose_estimator.evaluate import (
     PoseCase,
-    against_ippe,
     compare,
+    ippe_errors,
+    ippe_ratios,
     pose_cases,
     unrelated_views,
     wrong_branches,
@@ -60,20 +61,29 @@ def run(quick: bool) -> None:
              "method by more than 2%.")
     progress("pose: the upright prior when it is right and when it is wrong")
     rows = []
-    m = 1000 if quick else 2000
+    seeds, m = ((21, 22), 500) if quick else ((21, 22, 23, 24), 1000)
     for label, kw in (("upright (within 3°)", {}),
                       ("pitched to 15°, rolled to 10°", {"lean_deg": 15.0, "roll_deg": 10.0}),
                       ("mount 8° off the file's", {"lean_deg": 2.0, "mount_off_deg": 8.0})):
-        views = unrelated_views(m, seed=21, **kw)  # type: ignore[arg-type]
-        heavy, gaussian = against_ippe(views), against_ippe(views, tilt_huber_sigmas=0.0)
-        rows.append((label, f"{heavy[0]:.3f}", f"{heavy[1]:.3f}", f"{gaussian[0]:.3f}",
-                     f"{gaussian[1]:.3f}"))
-    section(f"Pose: position error / cv2 IPPE, {m} unrelated views at the marker's height, "
-            "0.3 px", ("markers", "heavy-tailed prior: median", "p90", "Gaussian prior: median",
-                       "p90"), rows,
+        # several seeds pooled: one seed's ratio of medians moves by about ±2-4 %
+        heavy_e, gauss_e = [], []
+        for seed in seeds:
+            views = unrelated_views(m, seed=seed, **kw)  # type: ignore[arg-type]
+            heavy_e.append(ippe_errors(views))
+            gauss_e.append(ippe_errors(views, tilt_huber_sigmas=0.0))
+        per_seed = [ippe_ratios(*e)[0] for e in heavy_e]
+        heavy = ippe_ratios(*(np.concatenate(x) for x in zip(*heavy_e, strict=True)))
+        gaussian = ippe_ratios(*(np.concatenate(x) for x in zip(*gauss_e, strict=True)))
+        rows.append((label, f"{heavy[0]:.3f}", f"{min(per_seed):.3f}-{max(per_seed):.3f}",
+                     f"{heavy[1]:.3f}", f"{gaussian[0]:.3f}", f"{gaussian[1]:.3f}"))
+    section(f"Pose: position error / cv2 IPPE, unrelated views at the marker's height, "
+            f"0.3 px ({len(seeds)} seeds x {m} views pooled)",
+            ("markers", "heavy-tailed prior: median", "median, per seed", "p90",
+             "Gaussian prior: median", "p90"), rows,
             "The upright prior (2°) is Gaussian to 1.75 sigma and heavy-tailed beyond "
-            "(estimate.TILT_HUBER_SIGMAS). Goal: upright median <= 0.95x, p90 <= 1.0x; pitched "
-            "or a mount off: median <= 1.05x, p90 <= 1.0x.")
+            "(estimate.TILT_HUBER_SIGMAS). The ratios are of the pooled errors; 'per seed' "
+            "is the spread of one seed's median ratio. Goal: upright median <= 0.95x, p90 "
+            "<= 1.0x; pitched or a mount off: median <= 1.05x, p90 <= 1.0x.")
     progress("pose: IPPE branches")
     rows = []
     for lo, hi in ((0.05, 0.3), (0.1, 1.0)):
