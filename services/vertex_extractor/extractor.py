@@ -33,13 +33,17 @@ Where we depart from the paper, keeping its spirit:
 - Each detection carries its per-vertex covariance (px²): the line fits' offset and angle
   variances propagated through the intersections, scaled for the points' correlation
   (``COV_SCALE``); one whose largest sigma exceeds ``max_vertex_sigma_px`` is refused.
-- A tall, narrow marker (steep views) is scanned along its rows when its columns are too few.
+- A tall, narrow marker (steep views) is scanned along its rows when its columns are too few;
+  any other marker is scanned along its rows as well and the two results checked against
+  each other (``_cross_checked``): blur along the columns or a shadow's boundary inside one
+  scan's window moves that scan's edges; the vertices are the two scans' mean, their
+  disagreement grows the covariance, and a large one is refused.
 
 Limits: one marker per frame (two similar blobs on a cold search are refused as ambiguous);
 without intrinsics the shape test cannot tell the marker from a rhombus of another shape
 that is a view of it (a narrower one seen face on is the marker turned about its vertical
-axis); motion blur longer than the sum window biases steep edges (its covariance then
-understates the error).
+axis); a marker measured by one scan only (too narrow for the columns, or the row scan
+fails) is not cross-checked, and a shadow's boundary near a vertex can still move both scans.
 """
 
 from __future__ import annotations
