@@ -100,12 +100,6 @@ class ExtractorParams(BaseModel):
     max_vertex_sigma_px: float = Field(
         default=1.2, gt=0, description="a detection whose vertex uncertainty (1 sigma, "
                                        "largest axis) exceeds this is refused")
-    cross_check: bool = Field(
-        default=True, description="check the column scan against a row scan of the same "
-                                  "marker (about twice the time; blur and shadows bias one)")
-    max_scan_disagreement_px: float = Field(
-        default=2.5, gt=0, description="largest vertex disagreement between the column and "
-                                       "the row scan of one marker (px); more is refused")
     max_outside_share: float = Field(
         default=0.2, gt=0, le=1, description="share of one edge's points allowed outside the "
                                              "quadrilateral (beyond its line's noise band)")
@@ -271,28 +265,27 @@ class RhombusExtractor:
         if not det.found and status != scan.BORDER and y1 - y0 > 1.3 * (x1 - x0) and \
                 det.reason.startswith(_FEW):
             det = self._transposed(image, sx, sy, (x0, x1, y0, y1), tracked, p) or det
-        elif det.found and p.cross_check:
+        elif det.found and CROSS_CHECK:
             det = self._cross_checked(det, self._transposed(image, sx, sy, (x0, x1, y0, y1),
-                                                            tracked, p), p)
+                                                            tracked, p))
         return det
 
     @staticmethod
-    def _cross_checked(det: Detection, rows: Detection | None, p: ExtractorParams
-                       ) -> Detection:
+    def _cross_checked(det: Detection, rows: Detection | None) -> Detection:
         """The column scan's detection checked against the row scan's of the same marker.
 
         Each scan measures an edge across its own direction: blur along the columns (motion,
         defocus) or a shadow's boundary running inside one scan's window moves that scan's
         edges, not (as much) the other's. Where both find the marker, the vertices are their
-        mean and each vertex's covariance grows by the square of half their disagreement; a
-        disagreement beyond ``max_scan_disagreement_px`` is refused. Where only the columns
+        mean, whose covariance is the scans' (scaled) plus their disagreement² (scaled); a
+        disagreement beyond ``MAX_SCAN_DISAGREEMENT_PX`` is refused. Where only the columns
         find it (a short, wide marker), their detection stands."""
-        if rows is None or rows.vertices_px is None or det.vertices_px is None or \
-                det.vertices_cov_px2 is None:
+        if rows is None or rows.vertices_px is None or rows.vertices_cov_px2 is None or \
+                det.vertices_px is None or det.vertices_cov_px2 is None:
             return det
         gap = np.sqrt(((det.vertices_px - rows.vertices_px) ** 2).sum(axis=1))
         worst = float(gap.max())
-        if worst > p.max_scan_disagreement_px:
+        if worst > MAX_SCAN_DISAGREEMENT_PX:
             return _miss(f"the column and row scans disagree by {worst:.1f} px (a shadow's "
                          f"boundary along an edge, or blur)", det.tracked)
         v = 0.5 * (det.vertices_px + rows.vertices_px)
@@ -395,6 +388,10 @@ COV_FLOOR_PX2 = 0.0004
 #: disagreement scaled, so that the squared errors normalised by it average 2 on clean webcam
 #: renders and stay near it under blur and shadows (``tests/test_hard_conditions.py``)
 MEAN_COV_SCALE = 0.4
+#: check the column scan against a row scan of the same marker (about twice the time; blur
+#: and shadows bias one of them) and refuse a vertex disagreement beyond this (px)
+CROSS_CHECK = True
+MAX_SCAN_DISAGREEMENT_PX = 2.5
 GAP_COV_SCALE = 0.5
 
 _FEW = ("too few", "marker too small (")
