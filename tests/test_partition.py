@@ -72,7 +72,7 @@ def test_the_zenoh_table_sets_the_lease_and_keep_alive():
     for name in ("sim-robot", "sim-laptop", "robot", "laptop"):
         dep = load_deployment(ROOT / "deploy" / f"{name}.toml")
         assert dep.zenoh.lease_s is not None and dep.zenoh.lease_s <= 2.0, name
-        assert dep.zenoh.mode == "client", name  # through the router only (notes/issue-20.md)
+        assert dep.zenoh.mode == "client", name  # through the router only (see departures)
 
 
 WHY_NOT = partition.unavailable()

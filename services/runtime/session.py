@@ -34,7 +34,7 @@ class ZenohSettings(BaseModel):
         "the liveliness tokens behind it go away (Zenoh's default: 10 s). Short (1-2 s) on the "
         "controller's and the IR transmitter's hosts, so a network partition reaches the "
         "liveliness stop too; too short a lease on a jittery link closes healthy links "
-        "(notes/issue-20.md)"))
+        "(the manual: How it works, Safety)"))
     keep_alive: int | None = Field(default=None, ge=1, le=100, description=(
         "keep-alive messages per lease on an otherwise idle link (Zenoh's default: 4)"))
     local_delivery: bool = Field(default=True, description=(
