@@ -111,11 +111,11 @@ def test_an_unhandled_exception_in_the_controller_sends_stop(router, make_bus, m
     original = controller_module.HeuristicController.decide
     calls = [0]
 
-    def flaky(self, pose, age, hold, now_s=None):
+    def flaky(self, pose, age, hold, now_s=None, *args, **kwargs):
         calls[0] += 1
         if calls[0] == 15:
             raise RuntimeError("injected fault")
-        return original(self, pose, age, hold, now_s)
+        return original(self, pose, age, hold, now_s, *args, **kwargs)
 
     monkeypatch.setattr(controller_module.HeuristicController, "decide", flaky)
     bus = make_bus("camera")

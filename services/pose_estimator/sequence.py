@@ -17,12 +17,12 @@ this module adds what the frames before it know:
   undecided, or crossing so that their candidates cannot be paired, or the followed branch
   being no minimum of its own) ``reason`` says "ambiguous" and the heading variance covers
   the other candidate: never a confident wrong branch.
-- **covariance**: the sandwich covariance of the estimate under a vertex noise model (the
-  extractor's per-vertex covariances when it sends them, else ``noise_sigma_px`` per
-  coordinate plus a common scale error ``scale_sigma_px``), with the upright prior's
-  information, plus the body's rock about its feet (the marker rolls about its normal with
-  the gait, ``rock_sigma_rad``), which moves the floor position the marker implies. Over the
-  webcam sequences its normalised estimation error squared of (x, y, yaw) averages 2.4.
+- **covariance**: the sandwich covariance of the estimate under a vertex noise model
+  (``noise_sigma_px`` per coordinate, plus what the extractor's per-vertex covariances report
+  beyond a clean frame's level, plus a common scale error ``scale_sigma_px``), with the
+  upright prior's information, plus the body's rock about its feet (the marker rolls about
+  its normal with the gait, ``rock_sigma_rad``), which moves the floor position the marker implies. Over the
+  webcam sequences its normalised estimation error squared of (x, y, yaw) averages 2.4-2.6.
 - **the mount**: ``MountCheck`` estimates from the marker's mean lean how far the real
   camera mount is off the deployment file's; once that has settled (and only when it is
   significant) the sequence uses the estimated up instead of the file's
@@ -112,6 +112,29 @@ def vertex_sigma(vertices_cov_px2: object | None, fallback_px: float) -> float:
         return fallback_px
     var = float(np.mean(np.trace(C, axis1=1, axis2=2))) / 2.0
     return math.sqrt(var) if var > 1e-6 else fallback_px
+
+
+#: The extractor's per-vertex sigma on clean frames (about its p99 on the webcam sequences,
+#: px). Its errors there are mostly common to the four vertices (the rhombus seen a little
+#: larger or smaller), which ``scale_sigma_px`` models; taken as independent they would
+#: overstate the heading's variance. Only what it reports beyond this level (a blurred or
+#: shadowed frame, the column and row scans disagreeing) is added to the noise model.
+EXTRACTOR_CLEAN_SIGMA_PX = 0.1
+
+
+def _excess_cov(vertices_cov_px2: object | None, clean_sigma_px: float) -> np.ndarray:
+    """The extractor's four 2 x 2 covariances less ``clean_sigma_px``² on each axis (clipped
+    at 0), px²; zeros when there are none or they are unusable."""
+    out = np.zeros((4, 2, 2))
+    if vertices_cov_px2 is None:
+        return out
+    C = np.asarray(vertices_cov_px2, dtype=np.float64)
+    if C.shape != (4, 2, 2) or not np.isfinite(C).all():
+        return out
+    for i in range(4):
+        w, V = np.linalg.eigh(0.5 * (C[i] + C[i].T))
+        out[i] = (V * np.maximum(w - clean_sigma_px ** 2, 0.0)) @ V.T
+    return out
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
@@ -374,9 +397,10 @@ class MarkerSequence:
     def _covariance(self, T: np.ndarray, v: np.ndarray, weight_px: float,
                     vertices_cov_px2: object | None) -> np.ndarray:
         """6 x 6 covariance of the estimate (a weighted least squares with weight
-        ``weight_px`` plus the upright prior) under the vertex noise model: the extractor's
-        per-vertex covariances, else ``noise_sigma_px`` on each coordinate, plus a common
-        scale error of ``scale_sigma_px`` (the rhombus seen a little larger or smaller, as
+        ``weight_px`` plus the upright prior) under the vertex noise model: ``noise_sigma_px``
+        on each coordinate plus what the extractor's per-vertex covariances report beyond a
+        clean frame's level (``EXTRACTOR_CLEAN_SIGMA_PX``), plus a common scale error of
+        ``scale_sigma_px`` (the rhombus seen a little larger or smaller, as
         blur, gamma and JPEG make it), plus the gait's rock about the marker normal. The
         sandwich A^-1 B A^-1 of the Gauss-Newton normal equations."""
         p = self.params
@@ -390,12 +414,11 @@ class MarkerSequence:
             raise PoseError("numerically degenerate view (a vertex at the camera's depth "
                             "0)") from None
         J = J * f  # px per unit of (w, t)
-        C = np.asarray(vertices_cov_px2, np.float64) if vertices_cov_px2 is not None else None
-        if C is None or C.shape != (4, 2, 2) or not np.isfinite(C).all():
-            C = np.tile(np.eye(2) * p.noise_sigma_px ** 2, (4, 1, 1))
         S = np.zeros((8, 8))
+        fixed = np.eye(2) * p.noise_sigma_px ** 2
+        excess = _excess_cov(vertices_cov_px2, EXTRACTOR_CLEAN_SIGMA_PX)
         for i in range(4):
-            S[2 * i:2 * i + 2, 2 * i:2 * i + 2] = C[i]
+            S[2 * i:2 * i + 2, 2 * i:2 * i + 2] = fixed + excess[i]
         d = (v - v.mean(axis=0)).ravel()
         d /= max(float(np.linalg.norm(d)), 1e-12) / 2.0  # about 1 px per vertex
         S += p.scale_sigma_px ** 2 * np.outer(d, d)
