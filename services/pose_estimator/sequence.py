@@ -21,8 +21,9 @@ this module adds what the frames before it know:
   (``noise_sigma_px`` per coordinate, plus what the extractor's per-vertex covariances report
   beyond a clean frame's level, plus a common scale error ``scale_sigma_px``), with the
   upright prior's information, plus the body's rock about its feet (the marker rolls about
-  its normal with the gait, ``rock_sigma_rad``), which moves the floor position the marker implies. Over the
-  webcam sequences its normalised estimation error squared of (x, y, yaw) averages 2.4-2.6.
+  its normal with the gait, ``rock_sigma_rad``), which moves the floor position the marker
+  implies. Over the webcam sequences its normalised estimation error squared of (x, y, yaw)
+  averages 2.4-2.6.
 - **the mount**: ``MountCheck`` estimates from the marker's mean lean how far the real
   camera mount is off the deployment file's; once that has settled (and only when it is
   significant) the sequence uses the estimated up instead of the file's
