@@ -138,14 +138,23 @@ def deployment(router: str, sessions) -> Iterator[tuple[zenoh.Session, list[str]
     assert not thread.is_alive()
 
 
-def _stats(s: zenoh.Session) -> dict[str, ServiceStats]:
-    alive = {str(r.ok.key_expr).rsplit("/", 1)[-1]
-             for r in s.liveliness().get("shepherd/alive/**", timeout=2.0) if r.ok}
+def _stats(s: zenoh.Session, timeout_s: float = 30.0) -> dict[str, ServiceStats]:
+    """Every service's stats, once all their tokens answer (asked again until ``timeout_s``:
+    on a loaded machine one 2 s liveliness query can come back before the answers)."""
+    deadline = time.monotonic() + timeout_s
+    while True:
+        alive = {str(r.ok.key_expr).rsplit("/", 1)[-1]
+                 for r in s.liveliness().get("shepherd/alive/**", timeout=2.0) if r.ok}
+        if set(SERVICES) <= alive or time.monotonic() > deadline:
+            break
     assert set(SERVICES) <= alive, f"services gone after fuzzing: {set(SERVICES) - alive}"
-    stats = {}
-    for name in SERVICES:
-        replies = [r.ok for r in s.get(f"shepherd/stats/{name}", timeout=2.0) if r.ok]
-        stats[name] = ServiceStats.model_validate_json(replies[0].payload.to_bytes())
+    stats: dict[str, ServiceStats] = {}
+    while set(stats) != set(SERVICES) and time.monotonic() < deadline:
+        for name in set(SERVICES) - set(stats):
+            replies = [r.ok for r in s.get(f"shepherd/stats/{name}", timeout=2.0) if r.ok]
+            if replies:
+                stats[name] = ServiceStats.model_validate_json(replies[0].payload.to_bytes())
+    assert set(stats) == set(SERVICES), f"no stats from {set(SERVICES) - set(stats)}"
     return stats
 
 
