@@ -9,7 +9,7 @@ import pytest
 from schemas import CameraPose, IrCommand
 from schemas.keys import FRAME, IR_COMMAND, ODOM
 from services.runtime.frames import encode_frame
-from tests.conftest import wait_for, wait_matched, wait_matched_key
+from tests.conftest import free_port, wait_for, wait_matched, wait_matched_key
 
 
 def test_typed_round_trip(make_bus):
@@ -247,3 +247,28 @@ def test_an_unexpected_error_on_one_frame_is_counted_and_the_next_frame_arrives(
         assert b.rejections.by_key()["shepherd/camera/frame"] == {
             "frame not taken: RuntimeError: injected": 1}
     asyncio.run(go())
+
+
+def test_a_client_waits_for_a_router_that_starts_after_it():
+    """The split deployments are clients of the robot's router: a laptop started first
+    waits for it (``connect_timeout_s``) instead of failing at once."""
+    import threading
+
+    from services.runtime.session import ZenohSettings, open_session
+    ep = f"tcp/127.0.0.1:{free_port()}"
+    done = threading.Event()
+
+    def late_router() -> None:
+        time.sleep(1.0)
+        with open_session(ZenohSettings(mode="router", listen=[ep], multicast_scouting=False)):
+            done.wait(30)
+
+    t = threading.Thread(target=late_router)
+    t.start()
+    try:
+        with open_session(ZenohSettings(mode="client", connect=[ep], multicast_scouting=False,
+                                        connect_timeout_s=20.0)) as s:
+            assert list(s.info.routers_zid())  # connected through the late router
+    finally:
+        done.set()
+        t.join(10)

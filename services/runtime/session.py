@@ -35,6 +35,9 @@ class ZenohSettings(BaseModel):
         "controller's and the IR transmitter's hosts, so a network partition reaches the "
         "liveliness stop too; too short a lease on a jittery link closes healthy links "
         "(the manual: How it works, Safety)"))
+    connect_timeout_s: float = Field(default=10.0, ge=0.0, le=3600.0, description=(
+        "a client waits this long for its router at start (a robot booting before the "
+        "router, or the laptop before the robot), then fails with a message (0: at once)"))
     keep_alive: int | None = Field(default=None, ge=1, le=100, description=(
         "keep-alive messages per lease on an otherwise idle link (Zenoh's default: 4)"))
     local_delivery: bool = Field(default=True, description=(
@@ -71,6 +74,9 @@ def zenoh_config(settings: ZenohSettings) -> zenoh.Config:
         conf.insert_json5("connect/endpoints", json.dumps(settings.connect))
     if settings.listen:
         conf.insert_json5("listen/endpoints", json.dumps(settings.listen))
+    if settings.mode == "client":
+        timeout_ms = round(1000 * settings.connect_timeout_s)
+        conf.insert_json5("connect/timeout_ms", json.dumps(timeout_ms))
     if settings.lease_s is not None:
         conf.insert_json5("transport/link/tx/lease", json.dumps(round(1000 * settings.lease_s)))
     if settings.keep_alive is not None:
