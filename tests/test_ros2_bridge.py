@@ -128,6 +128,30 @@ def test_floor_poses_move_between_map_and_odom_and_nowhere_else():
         tree.from_world("", (0.0, 0.0, 0.0))
 
 
+def test_odometry_of_another_body_is_refused_naming_its_child_frame():
+    from services.core.mounts import Geometry
+    tree = Tree(FrameNames(), (1.0, 2.0, math.pi / 2), Geometry())
+    T = rmw.typestore().types
+
+    def odometry(child: str):  # type: ignore[no-untyped-def]
+        return T[convert.ODOMETRY](
+            header=convert.header(42, "odom"), child_frame_id=child,
+            pose=T["geometry_msgs/msg/PoseWithCovariance"](
+                pose=T["geometry_msgs/msg/Pose"](
+                    position=T["geometry_msgs/msg/Point"](x=0.5, y=0.0, z=0.0),
+                    orientation=convert.yaw_quaternion(0.3)), covariance=np.zeros(36)),
+            twist=T["geometry_msgs/msg/TwistWithCovariance"](
+                twist=T["geometry_msgs/msg/Twist"](
+                    linear=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0),
+                    angular=T["geometry_msgs/msg/Vector3"](x=0.0, y=0.0, z=0.0)),
+                covariance=np.zeros(36)))
+    for child in ("base_link", ""):  # the robot's base, or not said
+        pose = convert.odometry_to_camera_pose(odometry(child), tree)
+        assert (pose.x, pose.y) == pytest.approx((1.0, 2.5))
+    with pytest.raises(UnknownFrameError, match=r"odometry of 'base_footprint'.*base_frame = "):
+        convert.odometry_to_camera_pose(odometry("base_footprint"), tree)
+
+
 def test_settings_keep_one_tree():
     from pydantic import ValidationError
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from schemas import CameraGoal, CameraIntrinsics, CameraPose, HumanoidPose, MissionGoal
 from services.core.geometry import quaternion_from_R
-from services.ros2_bridge.frames import Tree
+from services.ros2_bridge.frames import Tree, UnknownFrameError
 from services.ros2_bridge.rmw import typestore
 
 POSE_COV = "geometry_msgs/msg/PoseWithCovarianceStamped"
@@ -126,7 +126,13 @@ def _floor(pose: Any) -> tuple[float, float, float]:
 
 def odometry_to_camera_pose(odom: Any, tree: Tree) -> CameraPose:
     """``camera/odom`` from a nav_msgs/Odometry: its pose, in its header's frame, moved into
-    the world (UnknownFrameError, naming it, for a frame the tree cannot reach)."""
+    the world (UnknownFrameError, naming it, for a frame the tree cannot reach, or for a
+    ``child_frame_id`` other than the camera robot's base: odometry of another body)."""
+    child = str(odom.child_frame_id)
+    if child and child != tree.names.base:
+        raise UnknownFrameError(
+            f"odometry of {child!r}, not of the camera robot's base {tree.names.base!r}: set "
+            f"[services.ros2_bridge] base_frame = {child!r} if that is the robot's base")
     x, y, yaw = tree.to_world(odom.header.frame_id, _floor(odom.pose.pose))
     return CameraPose(stamp_ns=stamp_ns(odom.header.stamp), x=x, y=y, yaw=yaw)
 
