@@ -260,7 +260,7 @@ class RhombusExtractor:
         status, area, n, contrast, u, d, box = scan.scan(
             image, sx, sy, p.min_len_px, p.dx, p.window, p.colour.lut, p.colour.vector,
             _EDGES[p.edge], p.outside_rows)
-        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p)
+        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p, None, image)
         x0, x1, y0, y1 = (int(b) for b in box)
         if not det.found and status != scan.BORDER and y1 - y0 > 1.3 * (x1 - x0) and \
                 det.reason.startswith(_FEW):
@@ -307,7 +307,7 @@ class RhombusExtractor:
         status, area, n, contrast, u, d, _ = scan.scan(
             roi, sy - y0, sx - x0, p.min_len_px, p.dx, p.window, p.colour.lut,
             p.colour.vector, _EDGES[p.edge], p.outside_rows)
-        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p, (x0, y0))
+        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p, (x0, y0), roi)
         return det if det.found else None
 
     def _paper(self, image: np.ndarray, sx: int, sy: int, tracked: bool) -> Detection:
@@ -336,9 +336,11 @@ class RhombusExtractor:
 
     def _judge(self, status: int, area: int, n: int, contrast: float, u: np.ndarray,
                d: np.ndarray, size: tuple[int, int], tracked: bool, p: ExtractorParams,
-               transposed: tuple[int, int] | None = None) -> Detection:
+               transposed: tuple[int, int] | None = None, image: np.ndarray | None = None
+               ) -> Detection:
         """The scan's result as a detection or a refusal. ``transposed``: the scan ran on a
-        transposed region whose corner is at (x, y) of the image."""
+        transposed region whose corner is at (x, y) of the image; ``image``: what the scan
+        ran on (for the notch test)."""
         if status == scan.BORDER:
             return _miss("marker touches the image border", tracked)
         if area < p.min_area_px:
@@ -348,6 +350,9 @@ class RhombusExtractor:
         if status == scan.LOW_CONTRAST:
             return _miss(f"marker contrast too low ({contrast:.0f} grey levels)", tracked)
         u, d, cx, cy = lines.finite_points(u, d)  # without points where no edge was measured
+        if image is not None:  # nor a notch's (an occluder's)
+            u = u[scan.notch_kept(image, u, lines.on_hull(u, True, lines.HULL_TOLERANCE_PX), -1)]
+            d = d[scan.notch_kept(image, d, lines.on_hull(d, False, lines.HULL_TOLERANCE_PX), 1)]
         if u.shape[0] < 2 * p.min_points_per_edge + 4 or d.shape[0] < 2 * p.min_points_per_edge + 4:
             return _miss("too few measurable edge points (shadowed, hidden or washed out)",
                          tracked)

@@ -379,3 +379,26 @@ def _edge(img, x, end, out, window, outer, s_in, s_out, mode, lut, w, wl,  # typ
     for o in range(-window, outer):
         acc += min(max((score(img, end + 1 + o, x, lut, w) - lo) * inv, -0.5), 1.5)
     return end - window + 0.5 + acc
+
+
+CLIPPED = 235  # a pixel whose every channel reaches this (sRGB) is a clipped highlight
+
+
+@njit()
+def notch_kept(img: np.ndarray, points: np.ndarray, keep: np.ndarray, out: int) -> np.ndarray:
+    """``keep`` (``lines.on_hull``'s notch test of the edge points (N, 2) px, ``out`` = -1
+    for the upper chain, +1 for the lower), or all points where a notch is a clipped
+    highlight (white just outward of its points): an occluder's notch is left out of the
+    fit, but a highlight's halo bends the edge beside it too, so the marker is then measured
+    (or refused) as if there were no notch."""
+    H, W = img.shape[0], img.shape[1]
+    for i in range(points.shape[0]):
+        if keep[i]:
+            continue
+        x = int(points[i, 0] + 0.5)
+        for k in range(1, 4):
+            r = int(points[i, 1] + 0.5) + out * k
+            if 0 <= r < H and 0 <= x < W and img[r, x, 0] >= CLIPPED and \
+                    img[r, x, 1] >= CLIPPED and img[r, x, 2] >= CLIPPED:
+                return np.ones(points.shape[0], np.bool_)
+    return keep
