@@ -340,7 +340,8 @@ class RhombusExtractor:
                ) -> Detection:
         """The scan's result as a detection or a refusal. ``transposed``: the scan ran on a
         transposed region whose corner is at (x, y) of the image; ``image``: what the scan
-        ran on (for the notch test)."""
+        ran on, to try again without the points of a notch in the outline (an arm across an
+        edge: ``lines.on_hull``) where the points as they are fail."""
         if status == scan.BORDER:
             return _miss("marker touches the image border", tracked)
         if area < p.min_area_px:
@@ -350,9 +351,16 @@ class RhombusExtractor:
         if status == scan.LOW_CONTRAST:
             return _miss(f"marker contrast too low ({contrast:.0f} grey levels)", tracked)
         u, d, cx, cy = lines.finite_points(u, d)  # without points where no edge was measured
-        if image is not None:  # nor a notch's (an occluder's)
-            u = u[scan.notch_kept(image, u, lines.on_hull(u, True, lines.HULL_TOLERANCE_PX), -1)]
-            d = d[scan.notch_kept(image, d, lines.on_hull(d, False, lines.HULL_TOLERANCE_PX), 1)]
+        if image is not None:  # as they are; where that fails, without a notch's points
+            det = self._judge(status, area, n, contrast, u, d, size, tracked, p, transposed)
+            if det.found:
+                return det
+            u2 = u[scan.notch_kept(image, u, lines.on_hull(u, True, lines.HULL_TOLERANCE_PX), -1)]
+            d2 = d[scan.notch_kept(image, d, lines.on_hull(d, False, lines.HULL_TOLERANCE_PX), 1)]
+            if u2.shape[0] == u.shape[0] and d2.shape[0] == d.shape[0]:
+                return det
+            again = self._judge(status, area, n, contrast, u2, d2, size, tracked, p, transposed)
+            return again if again.found else det
         if u.shape[0] < 2 * p.min_points_per_edge + 4 or d.shape[0] < 2 * p.min_points_per_edge + 4:
             return _miss("too few measurable edge points (shadowed, hidden or washed out)",
                          tracked)
