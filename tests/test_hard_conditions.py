@@ -132,6 +132,14 @@ def test_a_notch_in_the_outline_is_left_out_but_an_outlier_outward_is_not_a_notc
     assert lines.on_hull(np.c_[x, spiked], True, lines.HULL_TOLERANCE_PX).all()
     lower = -notched  # the same for the D points (outward: larger y)
     assert not lines.on_hull(np.c_[x, lower], False, lines.HULL_TOLERANCE_PX)[6:13].any()
+    # a notch with clipped white just outward of it is a highlight: nothing is left out
+    from services.vertex_extractor import scan
+    pts = np.c_[x, notched + 20.0]
+    keep = lines.on_hull(pts, True, lines.HULL_TOLERANCE_PX)
+    frame = np.full((60, 40, 3), 90, np.uint8)
+    assert np.array_equal(scan.notch_kept(frame, pts, keep, -1), keep)
+    frame[27:34, 6:13] = 255  # just above the notch points (rows 31-34)
+    assert scan.notch_kept(frame, pts, keep, -1).all()
 
 
 def test_magenta_things_in_view_are_never_taken_for_the_marker():

@@ -24,6 +24,9 @@ Where we depart from the paper, keeping its spirit:
   better of it and the middle half), the split moved to where the two lines meet: an arm over
   a vertex or part of an edge is left out and the vertex comes from the visible lines; a line
   with fewer than half its points on it, or many points outside the quadrilateral, refuses.
+  Where the points as they are fail, they are tried again without a notch in the outline
+  (``lines.on_hull``: the marker is convex, so points deep inside their chain's hull are
+  something in front of it), unless the notch is a clipped highlight (``scan.notch_kept``).
 - A plausibility check (convex, sensible angles, enough points per edge, small residual, area
   consistent with the blob, up to 30 % hidden) and a shape test: by weak perspective, the
   quadrilateral must be the deployment's rhombus seen at most ``max_off_normal_deg`` off its
