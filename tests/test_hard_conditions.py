@@ -112,10 +112,34 @@ def _within_reported(dets: list) -> None:
         assert np.all(e <= np.maximum(2.0, 3.0 * sigma)), (e, sigma)
 
 
-def test_an_arm_across_an_edge_is_found_or_refused_never_wrong():
-    _, wrong, total, dets = _run("limb or bar over one edge", 24)
-    assert wrong <= 1, f"{wrong} of {total} wrong"
+def test_an_arm_across_an_edge_is_found_from_the_visible_lines_never_wrong():
+    errors, wrong, total, dets = _run("limb or bar over one edge", 24)
+    assert wrong == 0, f"{wrong} of {total} wrong"
+    assert len(errors) >= 0.75 * total, (len(errors), total)  # the notch left out: was 40 %
     _within_reported(dets)
+
+
+def test_a_notch_in_the_outline_is_left_out_but_an_outlier_outward_is_not_a_notch():
+    from services.vertex_extractor import lines
+    x = np.arange(40.0)
+    y = 0.6 * np.abs(x - 20.0)  # the U points: the top vertex at x = 20 (y grows down)
+    notched = y.copy()
+    notched[6:13] += 6.0  # an arm across the upper-left edge
+    keep = lines.on_hull(np.c_[x, notched], True, lines.HULL_TOLERANCE_PX)
+    assert not keep[6:13].any() and keep[:5].all() and keep[15:].all()
+    spiked = y.copy()
+    spiked[3] -= 2.5  # one point far outward: the hull bridges from it, but that is no notch
+    assert lines.on_hull(np.c_[x, spiked], True, lines.HULL_TOLERANCE_PX).all()
+    lower = -notched  # the same for the D points (outward: larger y)
+    assert not lines.on_hull(np.c_[x, lower], False, lines.HULL_TOLERANCE_PX)[6:13].any()
+    # a notch with clipped white just outward of it is a highlight: nothing is left out
+    from services.vertex_extractor import scan
+    pts = np.c_[x, notched + 20.0]
+    keep = lines.on_hull(pts, True, lines.HULL_TOLERANCE_PX)
+    frame = np.full((60, 40, 3), 90, np.uint8)
+    assert np.array_equal(scan.notch_kept(frame, pts, keep, -1), keep)
+    frame[27:34, 6:13] = 255  # just above the notch points (rows 31-34)
+    assert scan.notch_kept(frame, pts, keep, -1).all()
 
 
 def test_magenta_things_in_view_are_never_taken_for_the_marker():
@@ -216,3 +240,11 @@ def test_the_simulator_takes_its_hazards_from_the_deployment():
                        World()).style.hazards is None
     with pytest.raises(ConfigError, match=r"hazards\.shadow_factor"):
         parse_deployment({"services": {"sim": {"hazards": {"shadow_factor": 2.0}}}})
+
+
+def test_a_dim_marker_is_measured_while_its_edges_stand_out_of_the_noise():
+    """Low light (exposure x0.07-0.11): the contrast limit follows the marker's own pixel
+    noise, not a fixed number (a fixed 12 grey levels refused 3 frames in 10)."""
+    errors, wrong, total, dets = _run("low light (exposure x0.12)", 20)
+    assert wrong == 0 and len(errors) >= 0.95 * total, (wrong, len(errors), total)
+    _within_reported(dets)

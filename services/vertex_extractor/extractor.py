@@ -24,6 +24,9 @@ Where we depart from the paper, keeping its spirit:
   better of it and the middle half), the split moved to where the two lines meet: an arm over
   a vertex or part of an edge is left out and the vertex comes from the visible lines; a line
   with fewer than half its points on it, or many points outside the quadrilateral, refuses.
+  Where the points as they are fail, they are tried again without a notch in the outline
+  (``lines.on_hull``: the marker is convex, so points deep inside their chain's hull are
+  something in front of it), unless the notch is a clipped highlight (``scan.notch_kept``).
 - A plausibility check (convex, sensible angles, enough points per edge, small residual, area
   consistent with the blob, up to 30 % hidden) and a shape test: by weak perspective, the
   quadrilateral must be the deployment's rhombus seen at most ``max_off_normal_deg`` off its
@@ -260,7 +263,7 @@ class RhombusExtractor:
         status, area, n, contrast, u, d, box = scan.scan(
             image, sx, sy, p.min_len_px, p.dx, p.window, p.colour.lut, p.colour.vector,
             _EDGES[p.edge], p.outside_rows)
-        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p)
+        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p, None, image)
         x0, x1, y0, y1 = (int(b) for b in box)
         if not det.found and status != scan.BORDER and y1 - y0 > 1.3 * (x1 - x0) and \
                 det.reason.startswith(_FEW):
@@ -307,7 +310,7 @@ class RhombusExtractor:
         status, area, n, contrast, u, d, _ = scan.scan(
             roi, sy - y0, sx - x0, p.min_len_px, p.dx, p.window, p.colour.lut,
             p.colour.vector, _EDGES[p.edge], p.outside_rows)
-        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p, (x0, y0))
+        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p, (x0, y0), roi)
         return det if det.found else None
 
     def _paper(self, image: np.ndarray, sx: int, sy: int, tracked: bool) -> Detection:
@@ -336,9 +339,12 @@ class RhombusExtractor:
 
     def _judge(self, status: int, area: int, n: int, contrast: float, u: np.ndarray,
                d: np.ndarray, size: tuple[int, int], tracked: bool, p: ExtractorParams,
-               transposed: tuple[int, int] | None = None) -> Detection:
+               transposed: tuple[int, int] | None = None, image: np.ndarray | None = None
+               ) -> Detection:
         """The scan's result as a detection or a refusal. ``transposed``: the scan ran on a
-        transposed region whose corner is at (x, y) of the image."""
+        transposed region whose corner is at (x, y) of the image; ``image``: what the scan
+        ran on, to try again without the points of a notch in the outline (an arm across an
+        edge: ``lines.on_hull``) where the points as they are fail."""
         if status == scan.BORDER:
             return _miss("marker touches the image border", tracked)
         if area < p.min_area_px:
@@ -348,6 +354,16 @@ class RhombusExtractor:
         if status == scan.LOW_CONTRAST:
             return _miss(f"marker contrast too low ({contrast:.0f} grey levels)", tracked)
         u, d, cx, cy = lines.finite_points(u, d)  # without points where no edge was measured
+        if image is not None:  # as they are; where that fails, without a notch's points
+            det = self._judge(status, area, n, contrast, u, d, size, tracked, p, transposed)
+            if det.found:
+                return det
+            u2 = u[scan.notch_kept(image, u, lines.on_hull(u, True, lines.HULL_TOLERANCE_PX), -1)]
+            d2 = d[scan.notch_kept(image, d, lines.on_hull(d, False, lines.HULL_TOLERANCE_PX), 1)]
+            if u2.shape[0] == u.shape[0] and d2.shape[0] == d.shape[0]:
+                return det
+            again = self._judge(status, area, n, contrast, u2, d2, size, tracked, p, transposed)
+            return again if again.found else det
         if u.shape[0] < 2 * p.min_points_per_edge + 4 or d.shape[0] < 2 * p.min_points_per_edge + 4:
             return _miss("too few measurable edge points (shadowed, hidden or washed out)",
                          tracked)

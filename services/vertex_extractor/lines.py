@@ -471,3 +471,86 @@ def finite_points(u: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray,
             cy += 0.5 * kept[:, 1].mean()
         out.append(kept)
     return out[0], out[1], cx, cy
+
+
+#: an edge point further than this inside its chain's convex hull is left out (px): the marker
+#: is convex, so a notch in its outline is something in front of it (an arm across an edge),
+#: whose boundary must never be fitted as the marker's edge
+HULL_TOLERANCE_PX = 1.0
+HULL_SUPPORT = 3  # points on the hull needed each side of a notch
+HULL_NOTCH_PX = 3.0  # and its least depth (shallower: an outlier outward bridged by the hull)
+HULL_RIM_PX = 0.3  # a notch's rim: the points next to it deeper than this, and
+HULL_RIM_POINTS = 1  # this many more (their edge windows reach into the notch)
+
+
+@njit()
+def on_hull(points: np.ndarray, upper: bool, tol: float) -> np.ndarray:
+    """Which of the points (N, 2) px, ordered by x, lie within ``tol`` px of their chain's
+    convex hull on the outer side (upper: towards smaller y, the U points; else larger y, the
+    D points). The points of a notch (an occluder crossing an edge) lie inside it."""
+    n = points.shape[0]
+    keep = np.ones(n, np.bool_)
+    if n < 3:
+        return keep
+    depth = np.zeros(n)  # how far inside the hull (px)
+    s = -1.0 if upper else 1.0  # z = s y grows outward
+    hull = np.empty(n, np.int64)
+    h = 0
+    for i in range(n):
+        while h >= 2:
+            a, b = hull[h - 2], hull[h - 1]
+            cross = ((points[b, 0] - points[a, 0]) * s * (points[i, 1] - points[a, 1])
+                     - s * (points[b, 1] - points[a, 1]) * (points[i, 0] - points[a, 0]))
+            if cross >= 0:
+                h -= 1
+            else:
+                break
+        hull[h] = i
+        h += 1
+    j = 0
+    for i in range(n):
+        while j < h - 2 and hull[j + 1] <= i:
+            j += 1
+        a, b = hull[j], hull[j + 1]
+        dx = points[b, 0] - points[a, 0]
+        dz = s * (points[b, 1] - points[a, 1])
+        cross = dx * s * (points[i, 1] - points[a, 1]) - dz * (points[i, 0] - points[a, 0])
+        depth[i] = -cross / max(math.hypot(dx, dz), 1e-12)
+        keep[i] = depth[i] <= tol
+    # a notch lies between stretches of the outline on the hull; points inside it next to an
+    # end of the chain, or next to a lone outlier outward (which the hull takes as a vertex),
+    # are kept (the line fits' robustness deals with them)
+    i = 0
+    while i < n:
+        if keep[i]:
+            i += 1
+            continue
+        j = i
+        while j < n and not keep[j]:
+            j += 1
+        before = 0
+        while i - before - 1 >= 0 and keep[i - before - 1]:
+            before += 1
+        after = 0
+        while j + after < n and keep[j + after]:
+            after += 1
+        deepest = 0.0
+        for m in range(i, j):
+            deepest = max(deepest, depth[m])
+        if before < HULL_SUPPORT or after < HULL_SUPPORT or deepest < HULL_NOTCH_PX:
+            keep[i:j] = True
+        else:  # and its rim, where the edge bends into it (blur, a highlight's halo)
+            k = i - 1
+            while k >= 0 and depth[k] > HULL_RIM_PX:
+                keep[k] = False
+                k -= 1
+            for m in range(max(k - HULL_RIM_POINTS + 1, 0), k + 1):
+                keep[m] = False
+            k = j
+            while k < n and depth[k] > HULL_RIM_PX:
+                keep[k] = False
+                k += 1
+            for m in range(k, min(k + HULL_RIM_POINTS, n)):
+                keep[m] = False
+        i = j
+    return keep

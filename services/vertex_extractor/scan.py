@@ -19,7 +19,11 @@ from services.core.jit import njit
 from services.vertex_extractor.colour import chroma_direction, is_marker, score
 
 OK, BORDER, LOW_CONTRAST = 0, 1, 2
-MIN_CONTRAST = 12.0  # least marker-to-surround score difference (linear light x 255)
+#: least marker-to-surround score difference (linear light x 255): this many times the inside's
+#: pixel noise (a dim marker is measured as long as its edges stand out of the noise), and at
+#: least MIN_CONTRAST
+MIN_CONTRAST = 3.0
+CONTRAST_SNR = 8.0
 
 
 @njit(inline="always")
@@ -103,7 +107,8 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     (x, y) on columns Δx = ``dx`` apart, over the widest
     column and its neighbours whose run is at least ``min_len`` px long (Table 1's stop).
     Status: OK, BORDER (the marker reaches the image border or the edge windows would),
-    LOW_CONTRAST (less than MIN_CONTRAST between inside and outside, linear x 255).
+    LOW_CONTRAST (less than MIN_CONTRAST or CONTRAST_SNR x the inside's noise between inside
+    and outside, linear x 255).
     """
     H, W = img.shape[0], img.shape[1]
     empty = np.empty((0, 2))
@@ -165,9 +170,9 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     if counted == 0:
         return LOW_CONTRAST, area, n, 0.0, empty, empty, box
     w = chroma_direction(inside[0], inside[1], inside[2])  # the marker's own chroma
-    s_in, s_out = _levels(img, a, n, dx, top, bottom, gap, lut, w, m)
+    s_in, s_out, noise = _levels(img, a, n, dx, top, bottom, gap, lut, w, m)
     contrast = s_in - s_out
-    if contrast < MIN_CONTRAST:
+    if contrast < max(MIN_CONTRAST, CONTRAST_SNR * noise):
         return LOW_CONTRAST, area, n, contrast, empty, empty, box
     u = np.empty((n, 2))
     d = np.empty((n, 2))
@@ -253,7 +258,8 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
 @njit(inline="always")
 def _levels(img, a, n, dx, top, bottom, gap, lut, w, m):  # type: ignore[no-untyped-def]
     """(inside, outside) score levels of the whole marker: the median at the columns' centres
-    (marker pixels only) and the median just beyond the edge windows."""
+    (marker pixels only) and the median just beyond the edge windows; and the inside's pixel
+    noise (robust sigma, from the differences between neighbouring centres)."""
     inside = np.empty(n)
     k = 0
     outside = np.empty(2 * n)
@@ -265,7 +271,10 @@ def _levels(img, a, n, dx, top, bottom, gap, lut, w, m):  # type: ignore[no-unty
             k += 1
         outside[2 * i] = score(img, top[x] - gap, x, lut, w)
         outside[2 * i + 1] = score(img, bottom[x] + gap, x, lut, w)
-    return np.median(inside[:k]), np.median(outside)
+    noise = 0.0
+    if k > 2:  # neighbouring columns' differences: a shadow's or highlight's step is one of them
+        noise = 1.4826 / np.sqrt(2.0) * np.median(np.abs(np.diff(inside[:k])))
+    return np.median(inside[:k]), np.median(outside), noise
 
 
 LOCAL_ROWS = 3  # rows beyond the window that give the local background level
@@ -370,3 +379,26 @@ def _edge(img, x, end, out, window, outer, s_in, s_out, mode, lut, w, wl,  # typ
     for o in range(-window, outer):
         acc += min(max((score(img, end + 1 + o, x, lut, w) - lo) * inv, -0.5), 1.5)
     return end - window + 0.5 + acc
+
+
+CLIPPED = 235  # a pixel whose every channel reaches this (sRGB) is a clipped highlight
+
+
+@njit()
+def notch_kept(img: np.ndarray, points: np.ndarray, keep: np.ndarray, out: int) -> np.ndarray:
+    """``keep`` (``lines.on_hull``'s notch test of the edge points (N, 2) px, ``out`` = -1
+    for the upper chain, +1 for the lower), or all points where a notch is a clipped
+    highlight (white just outward of its points): an occluder's notch is left out of the
+    fit, but a highlight's halo bends the edge beside it too, so the marker is then measured
+    (or refused) as if there were no notch."""
+    H, W = img.shape[0], img.shape[1]
+    for i in range(points.shape[0]):
+        if keep[i]:
+            continue
+        x = int(points[i, 0] + 0.5)
+        for k in range(1, 4):
+            r = int(points[i, 1] + 0.5) + out * k
+            if 0 <= r < H and 0 <= x < W and img[r, x, 0] >= CLIPPED and \
+                    img[r, x, 1] >= CLIPPED and img[r, x, 2] >= CLIPPED:
+                return np.ones(points.shape[0], np.bool_)
+    return keep
