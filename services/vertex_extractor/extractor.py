@@ -57,8 +57,9 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.core.camera import CameraModel
 from services.core.mounts import Geometry
-from services.vertex_extractor import lines, paper, scan, shape
+from services.vertex_extractor import lines, paper, scan
 from services.vertex_extractor.colour import ColourModel, grid_mask
+from services.vertex_extractor.shape import ShapeParams, ShapeTest
 
 
 class ExtractorParams(BaseModel):
@@ -110,7 +111,7 @@ class ExtractorParams(BaseModel):
         default="ours", description="paper: Tables 1 and 2 as published (paper.py)")
     edge: Literal["local", "global", "crossing", "orthogonal"] = Field(
         default="orthogonal", description="sub-pixel edge method (scan.py; chosen by the bench)")
-    shape: shape.ShapeParams = Field(default_factory=shape.ShapeParams, description=(
+    shape: ShapeParams = Field(default_factory=ShapeParams, description=(
         "the shape test with intrinsics (camera/intrinsics): the best planar pose of the "
         "rhombus must reproject the vertices and view it as the deployment can"))
 
@@ -155,7 +156,7 @@ class RhombusExtractor:
             min_points_per_edge=min(p.min_points_per_edge, p.small_min_points_per_edge),
             min_area_px=min(p.min_area_px, p.small_min_area_px)))
         self._seed: tuple[int, int, int] | None = None  # x, y, search radius (px)
-        self._shape: shape.ShapeTest | None = None
+        self._shape: ShapeTest | None = None
         self._loose = (self.params, self._small)  # the weak shape test's bounds, loosened
 
     def use_intrinsics(self, camera: CameraModel | None, geometry: Geometry | None = None
@@ -163,7 +164,7 @@ class RhombusExtractor:
         """Test each detection's shape against the deployment's rhombus seen by this camera
         (``shape.py``) on frames of the camera's size; None: the weak-perspective test alone
         (the default, and on frames of another size)."""
-        self._shape = None if camera is None else shape.ShapeTest(camera, geometry,
+        self._shape = None if camera is None else ShapeTest(camera, geometry,
                                                                   self.params.shape)
         slack = self.params.shape.weak_slack_deg
 

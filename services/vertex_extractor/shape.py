@@ -225,4 +225,8 @@ class ShapeTest:
 
     def refusal(self, vertices_px: np.ndarray, cov_px2: np.ndarray | None) -> str:
         """Why these vertices are not the marker ("" when they may be)."""
-        return refusal(self.fit(vertices_px, cov_px2), self.params)
+        try:
+            f = self.fit(vertices_px, cov_px2)
+        except (ValueError, ArithmeticError, np.linalg.LinAlgError) as err:  # odd intrinsics
+            f = f"{type(err).__name__}: {err}"
+        return refusal(f, self.params)
