@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
-from schemas import CameraIntrinsics, MarkerVertices
+from schemas import MarkerVertices
 from schemas.keys import FRAME, INTRINSICS, VERTICES
 from services.core.camera import CameraModel
 from services.core.mounts import Geometry
