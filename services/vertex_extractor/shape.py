@@ -47,10 +47,15 @@ class ShapeParams(BaseModel):
         "by their covariance plus the floors (16: p = 0.0003 for a true marker)")
     floor_px: float = Field(
         default=0.15, ge=0, description="with intrinsics: the model's own error added to each "
-        "vertex's sigma (px): intrinsics and the printed shape are not exact")
+        "vertex's sigma (px; the calibration's rms_px if larger): intrinsics and the printed "
+        "shape are not exact")
     floor_share: float = Field(
-        default=0.003, ge=0, description="with intrinsics: and a model error proportional "
-        "to the marker's size (share of its longer diagonal): a rolling shutter shears it")
+        default=0.001, ge=0, description="with intrinsics: and a model error proportional "
+        "to the marker's size (share of its longer diagonal)")
+    shear_sigma: float = Field(
+        default=0.04, ge=0, description="with intrinsics: a rolling shutter's horizontal "
+        "shear (px per row, 1 sigma) the test allows for: a camera panning or a humanoid "
+        "walking across the view slants the marker, which no pose explains")
     sigma_px: float = Field(default=0.2, gt=0, description=(
         "with intrinsics: the vertex sigma (px) when a detection has no covariance"))
     max_off_normal_deg: float = Field(
@@ -91,10 +96,12 @@ class ShapeFit:
     T_camera_marker: np.ndarray
 
 
-def _whitener(vertices_px: np.ndarray, cov_px2: np.ndarray, camera: CameraModel
-              ) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised image points (4, 2) and the block-diagonal (8, 8) inverse Cholesky factor
-    of their covariance in normalised units (through the undistortion's local Jacobian)."""
+def _whitener(vertices_px: np.ndarray, cov_px2: np.ndarray, shear_sigma: float,
+              camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
+    """Normalised image points (4, 2) and the (8, 8) inverse Cholesky factor of their
+    covariance in normalised units (through the undistortion's local Jacobian): the vertices'
+    own (4, 2, 2) px², and a rolling shutter's unknown horizontal shear (x moves by
+    ``shear_sigma`` px per row from the centre, 1 sigma), common to the four."""
     if camera.dist.any():
         h = 0.5
         step = np.array([[h, 0.0], [0.0, h]])
@@ -107,42 +114,51 @@ def _whitener(vertices_px: np.ndarray, cov_px2: np.ndarray, camera: CameraModel
         K = camera.K
         J = np.broadcast_to(np.array([[1.0 / K[0, 0], -K[0, 1] / (K[0, 0] * K[1, 1])],
                                       [0.0, 1.0 / K[1, 1]]]), (4, 2, 2))
-    C = (J @ cov_px2 @ J.transpose(0, 2, 1)).tolist()
-    W = np.zeros((8, 8))
-    for k, ((a, b), (_, c)) in enumerate(C):  # the inverse of each 2 x 2 Cholesky factor
+    C = (J @ cov_px2 @ J.transpose(0, 2, 1)).tolist()  # per vertex, normalised units
+    Linv = np.zeros((8, 8))  # the inverse Cholesky factor of the block-diagonal part
+    for k, ((a, b), (_, c)) in enumerate(C):
         if not (a > 0 and c * a - b * b > 0):
             raise np.linalg.LinAlgError("not positive definite")
         l11 = math.sqrt(a)
         l21 = b / l11
         l22 = math.sqrt(c - l21 * l21)
-        W[2 * k, 2 * k] = 1.0 / l11
-        W[2 * k + 1, 2 * k] = -l21 / (l11 * l22)
-        W[2 * k + 1, 2 * k + 1] = 1.0 / l22
-    return np.ascontiguousarray(q), W
+        Linv[2 * k, 2 * k] = 1.0 / l11
+        Linv[2 * k + 1, 2 * k] = -l21 / (l11 * l22)
+        Linv[2 * k + 1, 2 * k + 1] = 1.0 / l22
+    # the shear adds u u^T (u: its effect, normalised): C = L (I + w w^T) L^T, w = L^-1 u,
+    # whose inverse square root (I - c w w^T) L^-1 whitens (Sherman-Morrison)
+    u = (J[:, :, 0] * (shear_sigma * (vertices_px[:, 1] - vertices_px[:, 1].mean()))[:, None]
+         ).ravel()
+    w = Linv @ u
+    ww = float(w @ w)
+    if ww > 0:
+        c = (1.0 - 1.0 / math.sqrt(1.0 + ww)) / ww
+        Linv -= c * np.outer(w, w @ Linv)
+    return np.ascontiguousarray(q), Linv
 
 
 def _weighted_fit(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray,
-                  W: np.ndarray, iterations: int = 1
+                  W: np.ndarray, iterations: int = 6
                   ) -> tuple[np.ndarray, np.ndarray, float]:
-    """Gauss-Newton on the whitened reprojection residuals from (R, t); (R, t, chi2)."""
-    r, J = residuals_and_jacobian(R, t, model, q)
-    rw, Jw = W @ r, W @ J
-    chi2 = float(rw @ rw)
+    """Gauss-Newton on the whitened reprojection residuals from (R, t): (R, t, chi2) of the
+    best iterate (the first step may overshoot when the shear's freedom moves the pose)."""
+    best = (R, t, np.inf)
     for _ in range(iterations):
+        r, J = residuals_and_jacobian(R, t, model, q)
+        rw, Jw = W @ r, W @ J
+        chi2 = float(rw @ rw)
+        if not math.isfinite(chi2):
+            break
+        if chi2 < best[2]:
+            best = (R, t, chi2)
         try:
             delta = -np.linalg.solve(Jw.T @ Jw + 1e-12 * np.eye(6), Jw.T @ rw)
         except np.linalg.LinAlgError:
             break
-        R2, t2 = exp_so3(delta[:3]) @ R, t + delta[3:]
-        if t2[2] <= 0:
+        R, t = exp_so3(delta[:3]) @ R, t + delta[3:]
+        if t[2] <= 0 or float(delta @ delta) < 1e-12:
             break
-        r, J = residuals_and_jacobian(R2, t2, model, q)
-        rw2 = W @ r
-        chi2_new = float(rw2 @ rw2)
-        if not chi2_new < chi2:
-            break
-        R, t, rw, Jw, chi2 = R2, t2, rw2, W @ J, chi2_new
-    return R, t, chi2
+    return best
 
 
 def fit(vertices_px: np.ndarray, cov_px2: np.ndarray | None, camera: CameraModel,
@@ -156,25 +172,32 @@ def fit(vertices_px: np.ndarray, cov_px2: np.ndarray | None, camera: CameraModel
     if not (np.isfinite(v).all() and np.isfinite(cov).all()):
         return "vertices or their covariance not finite"
     size = max(math.hypot(*(v[2] - v[0])), math.hypot(*(v[3] - v[1])))
-    cov = cov + (params.floor_px ** 2 + (params.floor_share * size) ** 2) * np.eye(2)
+    floor2 = max(params.floor_px, camera.rms_px) ** 2 + (params.floor_share * size) ** 2
+    cov = cov + floor2 * np.eye(2)
     try:
-        q, W = _whitener(v, cov, camera)
+        q, W = _whitener(v, cov, params.shear_sigma, camera)
     except np.linalg.LinAlgError:
         return "vertex covariance not positive definite"
     model = np.ascontiguousarray(marker_points, np.float64)
     status, Rs, ts, _, count = ippe4(model, q)
     if status != OK:
         return MESSAGES[status]
-    best: tuple[np.ndarray, np.ndarray, float] | None = None
-    for i in range(count):  # each candidate to its least squares (compiled), then weighted
+    start: tuple[np.ndarray, np.ndarray, float] | None = None
+    for i in range(count):  # each candidate to its least squares (compiled) ...
         R, t, _, _ = refine(Rs[i].copy(), ts[i].copy(), model, q, 5, _NO_UP, 0.0, 0.0)
-        r, _ = residuals_and_jacobian(R, t, model, q)
-        rw = W @ r
-        if best is None or float(rw @ rw) < best[2]:
-            best = (R, t, float(rw @ rw))
-    assert best is not None
-    R, t, chi2 = _weighted_fit(best[0], best[1], model, q, W)
-    reproj = camera.project(model @ R.T + t)
+        rw = W @ residuals_and_jacobian(R, t, model, q)[0]
+        if start is None or float(rw @ rw) < start[2]:
+            start = (R, t, float(rw @ rw))
+    assert start is not None  # ... the better one weighted (both end there when they differ)
+    R, t, chi2 = _weighted_fit(start[0], start[1], model, q, W)
+    miss = camera.project(model @ R.T + t) - v  # px, less the rolling shutter's best shear:
+    g = np.zeros((4, 2))
+    g[:, 0] = v[:, 1] - v[:, 1].mean()
+    Ci = np.linalg.inv(cov)
+    gCg = float(np.einsum("ki,kij,kj->", g, Ci, g))
+    if params.shear_sigma > 0:
+        miss -= g * float(np.einsum("ki,kij,kj->", g, Ci, miss)) / (
+            gCg + 1.0 / params.shear_sigma ** 2)
     n = R[:, 2]
     distance = float(np.linalg.norm(t))
     sight = -t / distance
@@ -188,7 +211,7 @@ def fit(vertices_px: np.ndarray, cov_px2: np.ndarray | None, camera: CameraModel
         max(-1.0, min(1.0, float(R[:, 1] @ up_in_plane) / norm))))
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, t
-    return ShapeFit(chi2, float(np.sqrt(((reproj - v) ** 2).sum(1)).max()), off_normal, roll,
+    return ShapeFit(chi2, float(np.sqrt((miss ** 2).sum(1)).max()), off_normal, roll,
                     pitch, distance, T)
 
 
