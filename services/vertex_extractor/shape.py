@@ -220,8 +220,9 @@ def refusal(f: ShapeFit | str, params: ShapeParams) -> str:
     if isinstance(f, str):
         return f"not the marker's shape: no planar pose of the rhombus ({f})"
     if f.chi2 > params.max_chi2:
-        return (f"not the marker's shape: its best pose reprojects {f.reprojection_px:.1f} px "
-                f"off (chi-square {f.chi2:.0f} > {params.max_chi2:.0f})")
+        return (f"not the marker's shape: its best pose reprojects "
+                f"{f.reprojection_px:.1f} px off (chi-square {f.chi2:.0f} > "
+                f"{params.max_chi2:.0f})")
     if f.off_normal_deg > params.max_off_normal_deg or f.roll_deg > params.max_roll_deg or \
             f.pitch_deg > params.max_pitch_deg:
         return (f"not the marker's shape in any expected view (its best pose is "
