@@ -57,7 +57,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.core.camera import CameraModel
 from services.core.mounts import Geometry
-from services.vertex_extractor import lines, paper, scan
+from services.vertex_extractor import lines, paper, scan, shape
 from services.vertex_extractor.colour import ColourModel, grid_mask
 from services.vertex_extractor.shape import ShapeParams, ShapeTest
 
@@ -458,3 +458,4 @@ def warm_up(params: ExtractorParams | None = None) -> None:
         extractor = RhombusExtractor(params)
         extractor.extract(frame)  # cold
         extractor.extract(frame)  # tracked
+    shape.warm_up()

@@ -25,11 +25,14 @@ import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
 from services.core.camera import CameraModel, undistort_px
+from services.core.jit import njit
 from services.core.mounts import Geometry
+from services.core.projection import normalise_px, project_px
 from services.pose_estimator.estimate import up_in_camera
 from services.pose_estimator.p4p import (
     MESSAGES,
     OK,
+    _solve_spd,
     exp_so3,
     ippe4,
     refine,
@@ -68,12 +71,12 @@ class ShapeParams(BaseModel):
         default=45.0, gt=0, le=90, description="with intrinsics: largest angle of the marker's "
         "normal above or below the world's horizontal (the humanoid stands upright)")
     weak_slack_deg: float = Field(
-        default=10.0, ge=0, le=30, description="with intrinsics: the weak-perspective shape "
+        default=0.0, ge=0, le=30, description="with intrinsics: the weak-perspective shape "
         "test's bounds (the extractor's max_off_normal_deg, max_roll_deg, max_pitch_deg) "
         "raised by this much, since the pose's own view is bounded here (steep views)")
 
 
-_NO_UP = np.zeros(3)  # refine's upright prior, off
+NOT_POSITIVE = 100  # the kernel's status for a covariance not positive definite
 
 
 @dataclass(frozen=True)
@@ -96,69 +99,92 @@ class ShapeFit:
     T_camera_marker: np.ndarray
 
 
-def _whitener(vertices_px: np.ndarray, cov_px2: np.ndarray, shear_sigma: float,
-              camera: CameraModel) -> tuple[np.ndarray, np.ndarray]:
-    """Normalised image points (4, 2) and the (8, 8) inverse Cholesky factor of their
-    covariance in normalised units (through the undistortion's local Jacobian): the vertices'
-    own (4, 2, 2) px², and a rolling shutter's unknown horizontal shear (x moves by
-    ``shear_sigma`` px per row from the centre, 1 sigma), common to the four."""
-    if camera.dist.any():
-        h = 0.5
-        step = np.array([[h, 0.0], [0.0, h]])
-        pts = np.concatenate([vertices_px, vertices_px + step[0], vertices_px + step[1]])
-        qs = undistort_px(camera, pts)
-        q = qs[:4]
-        J = np.stack([(qs[4:8] - q) / h, (qs[8:] - q) / h], axis=2)  # (4, 2, 2) dq / dpx
-    else:  # linear: the inverse of K's upper 2 x 2
-        q = undistort_px(camera, vertices_px)
-        K = camera.K
-        J = np.broadcast_to(np.array([[1.0 / K[0, 0], -K[0, 1] / (K[0, 0] * K[1, 1])],
-                                      [0.0, 1.0 / K[1, 1]]]), (4, 2, 2))
-    C = (J @ cov_px2 @ J.transpose(0, 2, 1)).tolist()  # per vertex, normalised units
-    Linv = np.zeros((8, 8))  # the inverse Cholesky factor of the block-diagonal part
-    for k, ((a, b), (_, c)) in enumerate(C):
-        if not (a > 0 and c * a - b * b > 0):
-            raise np.linalg.LinAlgError("not positive definite")
+@njit()
+def _whitener(cov: np.ndarray, J: np.ndarray, shear_px: np.ndarray) -> np.ndarray:
+    """The (8, 8) inverse square root of the vertices' covariance in normalised units
+    (through the undistortion's local Jacobian J (4, 2, 2)): their own (4, 2, 2) px², and a
+    rolling shutter's unknown horizontal shear moving vertex k by ``shear_px[k]`` px (1
+    sigma), common to the four. Zeros when a covariance is not positive definite."""
+    W = np.zeros((8, 8))
+    u = np.zeros(8)
+    for k in range(4):
+        Jk = J[k]
+        C = Jk @ cov[k] @ Jk.T
+        a, b, c = C[0, 0], C[0, 1], C[1, 1]
+        if not (a > 0.0 and a * c - b * b > 0.0):
+            return np.zeros((8, 8))
         l11 = math.sqrt(a)
         l21 = b / l11
         l22 = math.sqrt(c - l21 * l21)
-        Linv[2 * k, 2 * k] = 1.0 / l11
-        Linv[2 * k + 1, 2 * k] = -l21 / (l11 * l22)
-        Linv[2 * k + 1, 2 * k + 1] = 1.0 / l22
-    # the shear adds u u^T (u: its effect, normalised): C = L (I + w w^T) L^T, w = L^-1 u,
-    # whose inverse square root (I - c w w^T) L^-1 whitens (Sherman-Morrison)
-    u = (J[:, :, 0] * (shear_sigma * (vertices_px[:, 1] - vertices_px[:, 1].mean()))[:, None]
-         ).ravel()
-    w = Linv @ u
-    ww = float(w @ w)
-    if ww > 0:
-        c = (1.0 - 1.0 / math.sqrt(1.0 + ww)) / ww
-        Linv -= c * np.outer(w, w @ Linv)
-    return np.ascontiguousarray(q), Linv
+        W[2 * k, 2 * k] = 1.0 / l11
+        W[2 * k + 1, 2 * k] = -l21 / (l11 * l22)
+        W[2 * k + 1, 2 * k + 1] = 1.0 / l22
+        u[2 * k], u[2 * k + 1] = Jk[0, 0] * shear_px[k], Jk[1, 0] * shear_px[k]
+    # C = L (I + w w^T) L^T with w = L^-1 u: its inverse square root is (I - c w w^T) L^-1
+    w = W @ u
+    ww = w @ w
+    if ww > 0.0:
+        W = W - (1.0 - 1.0 / math.sqrt(1.0 + ww)) / ww * np.outer(w, w @ W)
+    return W
 
 
-def _weighted_fit(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray,
-                  W: np.ndarray, iterations: int = 6
-                  ) -> tuple[np.ndarray, np.ndarray, float]:
-    """Gauss-Newton on the whitened reprojection residuals from (R, t): (R, t, chi2) of the
-    best iterate (the first step may overshoot when the shear's freedom moves the pose)."""
-    best = (R, t, np.inf)
-    for _ in range(iterations):
-        r, J = residuals_and_jacobian(R, t, model, q)
-        rw, Jw = W @ r, W @ J
-        chi2 = float(rw @ rw)
+@njit()
+def _fit(v: np.ndarray, cov: np.ndarray, J: np.ndarray, q: np.ndarray, model: np.ndarray,
+         shear_sigma: float, K: np.ndarray, dist: np.ndarray
+         ) -> tuple[int, float, float, np.ndarray, np.ndarray]:
+    """(status, chi2, largest miss px less the best shear, R, t) of the best planar pose:
+    IPPE's candidates each refined to least squares, the better one weighted by the
+    whitened covariance then refined by Gauss-Newton (its best iterate: the first step may
+    overshoot when the shear's freedom moves the pose)."""
+    shear_px = shear_sigma * (v[:, 1] - v[:, 1].mean())
+    W = _whitener(cov, J, shear_px)
+    if W[0, 0] == 0.0:
+        return NOT_POSITIVE, np.inf, np.inf, np.eye(3), np.zeros(3)
+    status, Rs, ts, _, count = ippe4(model, q)
+    if status != OK:
+        return status, np.inf, np.inf, np.eye(3), np.zeros(3)
+    R, t, best = Rs[0].copy(), ts[0].copy(), np.inf
+    for i in range(count):
+        Ri, ti, _, _ = refine(Rs[i].copy(), ts[i].copy(), model, q, 5, np.zeros(3), 0.0, 0.0)
+        r, _ = residuals_and_jacobian(Ri, ti, model, q)
+        rw = W @ r
+        if rw @ rw < best:
+            R, t, best = Ri, ti, rw @ rw
+    R_best, t_best, best = R.copy(), t.copy(), np.inf
+    for _ in range(6):
+        r, Jr = residuals_and_jacobian(R, t, model, q)
+        rw = W @ r
+        Jw = W @ Jr
+        chi2 = rw @ rw
         if not math.isfinite(chi2):
             break
-        if chi2 < best[2]:
-            best = (R, t, chi2)
-        try:
-            delta = -np.linalg.solve(Jw.T @ Jw + 1e-12 * np.eye(6), Jw.T @ rw)
-        except np.linalg.LinAlgError:
+        if chi2 < best:
+            R_best, t_best, best = R.copy(), t.copy(), chi2
+        delta = _solve_spd(Jw.T @ Jw, Jw.T @ rw)
+        if not np.all(np.isfinite(delta)):
             break
-        R, t = exp_so3(delta[:3]) @ R, t + delta[3:]
-        if t[2] <= 0 or float(delta @ delta) < 1e-12:
+        R = exp_so3(delta[:3]) @ R
+        t = t + delta[3:]
+        if t[2] <= 0.0 or delta @ delta < 1e-12:
             break
-    return best
+    # the largest miss in px, less the shear that best explains the misses (its prior too)
+    miss = project_px(K, dist, model @ R_best.T + t_best) - v
+    gCg = 0.0
+    gCm = 0.0
+    for k in range(4):
+        a, b, c = cov[k, 0, 0], cov[k, 0, 1], cov[k, 1, 1]
+        det = a * c - b * b
+        g = v[k, 1] - v[:, 1].mean()
+        gCg += g * g * c / det
+        gCm += g * (c * miss[k, 0] - b * miss[k, 1]) / det
+    if shear_sigma > 0.0:
+        s = gCm / (gCg + 1.0 / (shear_sigma * shear_sigma))
+        for k in range(4):
+            miss[k, 0] -= s * (v[k, 1] - v[:, 1].mean())
+    worst = 0.0
+    for k in range(4):
+        worst = max(worst, math.hypot(miss[k, 0], miss[k, 1]))
+    return OK, best, worst, R_best, t_best
 
 
 def fit(vertices_px: np.ndarray, cov_px2: np.ndarray | None, camera: CameraModel,
@@ -169,50 +195,45 @@ def fit(vertices_px: np.ndarray, cov_px2: np.ndarray | None, camera: CameraModel
     v = np.ascontiguousarray(vertices_px, np.float64)
     cov = (np.tile(params.sigma_px ** 2 * np.eye(2), (4, 1, 1)) if cov_px2 is None
            else np.asarray(cov_px2, np.float64).reshape(4, 2, 2))
-    if not (np.isfinite(v).all() and np.isfinite(cov).all()):
+    if v.shape != (4, 2) or not (np.isfinite(v).all() and np.isfinite(cov).all()):
         return "vertices or their covariance not finite"
-    size = max(math.hypot(*(v[2] - v[0])), math.hypot(*(v[3] - v[1])))
+    (x0, y0), (x1, y1), (x2, y2), (x3, y3) = v.tolist()
+    size = max(math.hypot(x2 - x0, y2 - y0), math.hypot(x3 - x1, y3 - y1))
     floor2 = max(params.floor_px, camera.rms_px) ** 2 + (params.floor_share * size) ** 2
     cov = cov + floor2 * np.eye(2)
-    try:
-        q, W = _whitener(v, cov, params.shear_sigma, camera)
-    except np.linalg.LinAlgError:
+    K = camera.K
+    if camera.dist.any():  # the undistortion's local Jacobian, numerically
+        h = 0.5
+        step = np.array([[h, 0.0], [0.0, h]])
+        qs = undistort_px(camera, np.concatenate([v, v + step[0], v + step[1]]))
+        q = np.ascontiguousarray(qs[:4])
+        J = np.ascontiguousarray(np.stack([(qs[4:8] - q) / h, (qs[8:] - q) / h], axis=2))
+    else:  # linear: the inverse of K's upper 2 x 2
+        q = normalise_px(K, v)
+        J = np.empty((4, 2, 2))
+        J[:] = ((1.0 / K[0, 0], -K[0, 1] / (K[0, 0] * K[1, 1])), (0.0, 1.0 / K[1, 1]))
+    status, chi2, miss, R, t = _fit(v, cov, J, q, np.ascontiguousarray(marker_points,
+                                                                       np.float64),
+                                    params.shear_sigma, K, camera.dist)
+    if status == NOT_POSITIVE:
         return "vertex covariance not positive definite"
-    model = np.ascontiguousarray(marker_points, np.float64)
-    status, Rs, ts, _, count = ippe4(model, q)
     if status != OK:
         return MESSAGES[status]
-    start: tuple[np.ndarray, np.ndarray, float] | None = None
-    for i in range(count):  # each candidate to its least squares (compiled) ...
-        R, t, _, _ = refine(Rs[i].copy(), ts[i].copy(), model, q, 5, _NO_UP, 0.0, 0.0)
-        rw = W @ residuals_and_jacobian(R, t, model, q)[0]
-        if start is None or float(rw @ rw) < start[2]:
-            start = (R, t, float(rw @ rw))
-    assert start is not None  # ... the better one weighted (both end there when they differ)
-    R, t, chi2 = _weighted_fit(start[0], start[1], model, q, W)
-    miss = camera.project(model @ R.T + t) - v  # px, less the rolling shutter's best shear:
-    g = np.zeros((4, 2))
-    g[:, 0] = v[:, 1] - v[:, 1].mean()
-    Ci = np.linalg.inv(cov)
-    gCg = float(np.einsum("ki,kij,kj->", g, Ci, g))
-    if params.shear_sigma > 0:
-        miss -= g * float(np.einsum("ki,kij,kj->", g, Ci, miss)) / (
-            gCg + 1.0 / params.shear_sigma ** 2)
-    n = R[:, 2]
-    distance = float(np.linalg.norm(t))
-    sight = -t / distance
-    off_normal = math.degrees(math.acos(min(abs(float(n @ sight)), 1.0)))
-    up = up_cam / np.linalg.norm(up_cam)
-    elevation = float(n @ up)
+    n0, n1, n2 = R[:, 2].tolist()
+    t0, t1, t2 = t.tolist()
+    distance = math.sqrt(t0 * t0 + t1 * t1 + t2 * t2)
+    off_normal = math.degrees(math.acos(min(abs(n0 * t0 + n1 * t1 + n2 * t2) / distance, 1.0)))
+    u0, u1, u2 = (up_cam / np.linalg.norm(up_cam)).tolist()
+    elevation = n0 * u0 + n1 * u1 + n2 * u2
     pitch = math.degrees(math.asin(min(abs(elevation), 1.0)))
-    up_in_plane = up - elevation * n  # the world's up in the marker's plane
-    norm = float(np.linalg.norm(up_in_plane))
+    p0, p1, p2 = u0 - elevation * n0, u1 - elevation * n1, u2 - elevation * n2  # up, in plane
+    norm = math.sqrt(p0 * p0 + p1 * p1 + p2 * p2)
+    y0_, y1_, y2_ = R[:, 1].tolist()
     roll = 180.0 if norm < 1e-9 else math.degrees(math.acos(
-        max(-1.0, min(1.0, float(R[:, 1] @ up_in_plane) / norm))))
+        max(-1.0, min(1.0, (y0_ * p0 + y1_ * p1 + y2_ * p2) / norm))))
     T = np.eye(4)
     T[:3, :3], T[:3, 3] = R, t
-    return ShapeFit(chi2, float(np.sqrt((miss ** 2).sum(1)).max()), off_normal, roll,
-                    pitch, distance, T)
+    return ShapeFit(float(chi2), float(miss), off_normal, roll, pitch, distance, T)
 
 
 def refusal(f: ShapeFit | str, params: ShapeParams) -> str:
@@ -254,3 +275,11 @@ class ShapeTest:
         except (ValueError, ArithmeticError, np.linalg.LinAlgError) as err:  # odd intrinsics
             f = f"{type(err).__name__}: {err}"
         return refusal(f, self.params)
+
+
+def warm_up() -> None:
+    """Compile (or load from numba's on-disk cache) the fit's kernels."""
+    camera = CameraModel.paper()
+    v = np.array([[290.0, 240.0], [320.0, 200.0], [350.0, 240.0], [320.0, 280.0]])
+    ShapeTest(camera).refusal(v, None)
+    ShapeTest(CameraModel(camera.K, np.array([-0.1, 0.0, 0.0, 0.0, 0.0]))).refusal(v, None)
