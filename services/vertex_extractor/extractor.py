@@ -29,7 +29,10 @@ Where we depart from the paper, keeping its spirit:
   quadrilateral must be the deployment's rhombus seen at most ``max_off_normal_deg`` off its
   normal, rolled at most ``max_roll_deg`` and turned at most ``max_pitch_deg`` about its
   horizontal axis (a level camera at about the marker's height), so that a card, a square or
-  a wide rhombus in the same ink is refused. Anything else is ``found = False`` with a reason.
+  a wide rhombus in the same ink is refused. With the camera's intrinsics
+  (``use_intrinsics``) the best planar pose of the rhombus must also reproject the vertices
+  and view it as the deployment can (``shape.py``). Anything else is ``found = False`` with
+  a reason.
 - Each detection carries its per-vertex covariance (px²): the line fits' offset and angle
   variances propagated through the intersections, scaled for the points' correlation
   (``COV_SCALE``); one whose largest sigma exceeds ``max_vertex_sigma_px`` is refused.
@@ -42,7 +45,7 @@ Where we depart from the paper, keeping its spirit:
 Limits: one marker per frame (two similar blobs on a cold search are refused as ambiguous);
 without intrinsics the shape test cannot tell the marker from a rhombus of another shape
 that is a view of it (a narrower one seen face on is the marker turned about its vertical
-axis); a marker measured by one scan only (too narrow for the columns, or the row scan
+axis), and with them only where the view is far from affine (near, large); a marker measured by one scan only (too narrow for the columns, or the row scan
 fails) is not cross-checked, and a shadow's boundary near a vertex can still move both scans.
 """
 
