@@ -45,8 +45,9 @@ Where we depart from the paper, keeping its spirit:
 Limits: one marker per frame (two similar blobs on a cold search are refused as ambiguous);
 without intrinsics the shape test cannot tell the marker from a rhombus of another shape
 that is a view of it (a narrower one seen face on is the marker turned about its vertical
-axis), and with them only where the view is far from affine (near, large); a marker measured by one scan only (too narrow for the columns, or the row scan
-fails) is not cross-checked, and a shadow's boundary near a vertex can still move both scans.
+axis), and with them only where the view is far from affine (near, large); a marker
+measured by one scan only (too narrow for the columns, or the row scan fails) is not
+cross-checked, and a shadow's boundary near a vertex can still move both scans.
 """
 
 from __future__ import annotations
