@@ -28,7 +28,6 @@ from services.core.camera import CameraModel, undistort_px
 from services.core.jit import njit
 from services.core.mounts import Geometry
 from services.core.projection import normalise_px, project_px
-from services.pose_estimator.estimate import up_in_camera
 from services.pose_estimator.p4p import (
     MESSAGES,
     OK,
@@ -262,7 +261,7 @@ class ShapeTest:
         self.size = (camera.width, camera.height)
         self.params = params or ShapeParams()
         self.marker_points = geometry.marker_points()
-        self.up_cam = up_in_camera(geometry.T_base_camera())
+        self.up_cam = geometry.T_base_camera()[2, :3].copy()  # the world's up, camera frame
 
     def fit(self, vertices_px: np.ndarray, cov_px2: np.ndarray | None) -> ShapeFit | str:
         return fit(vertices_px, cov_px2, self.camera, self.marker_points, self.up_cam,
