@@ -32,7 +32,10 @@ Where we depart from the paper, keeping its spirit:
   quadrilateral must be the deployment's rhombus seen at most ``max_off_normal_deg`` off its
   normal, rolled at most ``max_roll_deg`` and turned at most ``max_pitch_deg`` about its
   horizontal axis (a level camera at about the marker's height), so that a card, a square or
-  a wide rhombus in the same ink is refused. Anything else is ``found = False`` with a reason.
+  a wide rhombus in the same ink is refused. With the camera's intrinsics
+  (``use_intrinsics``) the best planar pose of the rhombus must also reproject the vertices
+  and view it as the deployment can (``shape.py``). Anything else is ``found = False`` with
+  a reason.
 - Each detection carries its per-vertex covariance (px²): the line fits' offset and angle
   variances propagated through the intersections, scaled for the points' correlation
   (``COV_SCALE``); one whose largest sigma exceeds ``max_vertex_sigma_px`` is refused.
@@ -45,8 +48,9 @@ Where we depart from the paper, keeping its spirit:
 Limits: one marker per frame (two similar blobs on a cold search are refused as ambiguous);
 without intrinsics the shape test cannot tell the marker from a rhombus of another shape
 that is a view of it (a narrower one seen face on is the marker turned about its vertical
-axis); a marker measured by one scan only (too narrow for the columns, or the row scan
-fails) is not cross-checked, and a shadow's boundary near a vertex can still move both scans.
+axis), and with them only where the view is far from affine (near, large); a marker
+measured by one scan only (too narrow for the columns, or the row scan fails) is not
+cross-checked, and a shadow's boundary near a vertex can still move both scans.
 """
 
 from __future__ import annotations
@@ -58,9 +62,11 @@ import cv2
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field
 
+from services.core.camera import CameraModel
 from services.core.mounts import Geometry
-from services.vertex_extractor import lines, paper, scan
+from services.vertex_extractor import lines, paper, scan, shape
 from services.vertex_extractor.colour import ColourModel, grid_mask
+from services.vertex_extractor.shape import ShapeParams, ShapeTest
 
 
 class ExtractorParams(BaseModel):
@@ -112,6 +118,9 @@ class ExtractorParams(BaseModel):
         default="ours", description="paper: Tables 1 and 2 as published (paper.py)")
     edge: Literal["local", "global", "crossing", "orthogonal"] = Field(
         default="orthogonal", description="sub-pixel edge method (scan.py; chosen by the bench)")
+    shape: ShapeParams = Field(default_factory=ShapeParams, description=(
+        "the shape test with intrinsics (camera/intrinsics): the best planar pose of the "
+        "rhombus must reproject the vertices and view it as the deployment can"))
 
 
 _EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING,
@@ -154,6 +163,28 @@ class RhombusExtractor:
             min_points_per_edge=min(p.min_points_per_edge, p.small_min_points_per_edge),
             min_area_px=min(p.min_area_px, p.small_min_area_px)))
         self._seed: tuple[int, int, int] | None = None  # x, y, search radius (px)
+        self._shape: ShapeTest | None = None
+        self._loose = (self.params, self._small)  # the weak shape test's bounds, loosened
+
+    def use_intrinsics(self, camera: CameraModel | None, geometry: Geometry | None = None
+                       ) -> None:
+        """Test each detection's shape against the deployment's rhombus seen by this camera
+        (``shape.py``) on frames of the camera's size; None: the weak-perspective test alone
+        (the default, and on frames of another size)."""
+        self._shape = None if camera is None else ShapeTest(camera, geometry,
+                                                                  self.params.shape)
+        slack = self.params.shape.weak_slack_deg
+
+        def loose(p: ExtractorParams) -> ExtractorParams:
+            return p.model_copy(update=dict(
+                max_off_normal_deg=min(p.max_off_normal_deg + slack, 89.0),
+                max_roll_deg=min(p.max_roll_deg + slack, 180.0),
+                max_pitch_deg=min(p.max_pitch_deg + slack, 90.0)))
+        self._loose = (loose(self.params), loose(self._small))
+
+    @property
+    def intrinsics(self) -> CameraModel | None:
+        return None if self._shape is None else self._shape.camera
 
     def reset(self) -> None:
         self._seed = None
@@ -239,12 +270,18 @@ class RhombusExtractor:
         if sx < 0:
             self._seed = None
             return _miss("no marker-coloured pixels at the seed", tracked)
+        test = self._shape if self._shape is not None and self._shape.size == (
+            image.shape[1], image.shape[0]) else None  # intrinsics for this frame size
         if p.method == "paper":
             det = self._paper(image, sx, sy, tracked)
         else:
-            det = self._measure(image, sx, sy, tracked, p)
+            loose, small = self._loose if test is not None else (p, self._small)
+            det = self._measure(image, sx, sy, tracked, loose)
             if not det.found and det.reason.startswith(_FEW):  # a small marker?
-                det = self._measure(image, sx, sy, tracked, self._small)
+                det = self._measure(image, sx, sy, tracked, small)
+        if det.found and test is not None and det.vertices_px is not None and (
+                reason := test.refusal(det.vertices_px, det.vertices_cov_px2)):
+            det = _miss(reason, tracked)
         if det.found:
             assert det.vertices_px is not None
             (x0, y0), (x1, y1), (x2, y2), (x3, y3) = det.vertices_px.tolist()  # plain floats:
@@ -441,3 +478,4 @@ def warm_up(params: ExtractorParams | None = None) -> None:
         extractor = RhombusExtractor(params)
         extractor.extract(frame)  # cold
         extractor.extract(frame)  # tracked
+    shape.warm_up()

@@ -1,14 +1,23 @@
-"""The ``vertex_extractor`` service: ``camera/frame`` (latest only) -> ``marker/vertices``."""
+"""The ``vertex_extractor`` service: ``camera/frame`` (latest only) -> ``marker/vertices``.
+
+With the camera's intrinsics (``intrinsics``, a file, or else ``camera/intrinsics``, asked
+once at the start and followed, as the pose estimator takes them) each detection's shape is
+tested against the deployment's rhombus seen by that camera (``shape.py``); without them, or
+on frames of another size, the weak-perspective test alone.
+"""
 
 from __future__ import annotations
 
 import asyncio
+import logging
 
 import cv2
 from pydantic import Field, model_validator
 
-from schemas import FrameEncoding, MarkerVertices
-from schemas.keys import VERTICES
+from schemas import CameraIntrinsics, FrameEncoding, MarkerVertices
+from schemas.keys import INTRINSICS, VERTICES
+from services.core.camera import CameraModel
+from services.core.mounts import Geometry
 from services.runtime.config import RelPath, ServiceSettings
 from services.runtime.context import ServiceContext
 from services.vertex_extractor.extractor import (
@@ -27,6 +36,8 @@ class Settings(ServiceSettings, ExtractorParams):
 
     colour_file: RelPath | None = Field(default=None, description=(
         "a colour model from shepherd marker learn; replaces colour"))
+    intrinsics: RelPath | None = Field(default=None, description=(
+        "TOML file for the shape test; else taken from camera/intrinsics when served"))
 
     @model_validator(mode="after")
     def _load_colour(self) -> Settings:
@@ -47,24 +58,85 @@ def to_message(det: Detection, seq: int, stamp_ns: int, width: int, height: int
                           height=height, vertices_cov_px2=cov)  # type: ignore[arg-type]
 
 
+class IntrinsicsFollower:
+    """Gives the extractor the camera's intrinsics as they come (never dies on bad ones)."""
+
+    def __init__(self, extractor: RhombusExtractor, geometry: Geometry,
+                 log: logging.Logger) -> None:
+        self.extractor, self.geometry, self.log = extractor, geometry, log
+        self._told_size: tuple[int, int] | None = None
+
+    def take(self, msg: CameraIntrinsics) -> None:
+        """Use these intrinsics from now on (unchanged ones cost nothing)."""
+        try:
+            camera = CameraModel.from_message(msg)
+        except ValueError as err:
+            self.log.warning("intrinsics on camera/intrinsics not used: %s", err)
+            return
+        old = self.extractor.intrinsics
+        if old is not None and old.width == camera.width and old.height == camera.height \
+                and (old.K == camera.K).all() and (old.dist == camera.dist).all():
+            return
+        self.extractor.use_intrinsics(camera, self.geometry)
+        self._told_size = None
+        self.log.info("shape test with intrinsics %dx%d fx=%.1f fy=%.1f", camera.width,
+                      camera.height, camera.K[0, 0], camera.K[1, 1])
+
+    def check_size(self, width: int, height: int) -> None:
+        """Warn once when the frames are not of the intrinsics' size (no shape test then)."""
+        camera = self.extractor.intrinsics
+        if camera is not None and (width, height) != (camera.width, camera.height) and \
+                self._told_size != (width, height):
+            self._told_size = (width, height)
+            self.log.warning("frames are %dx%d but the intrinsics are for %dx%d: shape test "
+                             "without intrinsics", width, height, camera.width, camera.height)
+
+
+async def _ask_intrinsics(ctx: ServiceContext, follower: IntrinsicsFollower) -> None:
+    """Ask camera/intrinsics once (the pose estimator's queryable); quietly none if nobody
+    serves them (the topic may still bring them)."""
+    try:
+        replies = await ctx.bus.get(INTRINSICS, CameraIntrinsics, timeout=2.0)
+    except Exception as err:  # a closing session: the topic is still followed
+        ctx.log.debug("asking camera/intrinsics failed: %s", err)
+        return
+    if replies and follower.extractor.intrinsics is None:
+        follower.take(replies[0])
+
+
 async def main(ctx: ServiceContext, config: Settings) -> None:
     bus, log = ctx.bus, ctx.log
     params = config.part(ExtractorParams)
     frames = bus.subscribe_frames(latest=True)
+    updates = bus.subscribe(INTRINSICS, CameraIntrinsics, latest=True)
     await asyncio.to_thread(warm_up, params)  # compiled kernels ready before the first frame
     g = ctx.geometry
     extractor = RhombusExtractor(params, g.marker_width_m / g.marker_height_m)
-    async for frame in frames:
-        h = frame.header
-        image = frame.image
-        if h.encoding is FrameEncoding.MONO8:
-            det = Detection(False, reason="mono8 frame: the colour marker needs a colour image")
-        else:
-            try:
-                det = extractor.extract(image if image.ndim == 3 else
-                                        cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
-            except Exception as err:
-                log.exception("extractor failed on frame %d", h.seq)
-                extractor.reset()
-                det = Detection(False, reason=f"internal error: {err}")
-        bus.put(VERTICES, to_message(det, h.seq, h.stamp_ns, h.width, h.height))
+    follower = IntrinsicsFollower(extractor, g, log)
+    asking = None
+    if config.intrinsics is not None:
+        follower.take(CameraModel.load(config.intrinsics).to_message())
+    else:
+        asking = asyncio.create_task(_ask_intrinsics(ctx, follower))
+    try:
+        async for frame in frames:
+            if config.intrinsics is None and (k := updates.get_nowait()) is not None:
+                follower.take(k)
+            h = frame.header
+            follower.check_size(h.width, h.height)
+            image = frame.image
+            if h.encoding is FrameEncoding.MONO8:
+                det = Detection(False, reason="mono8 frame: the colour marker needs a colour "
+                                              "image")
+            else:
+                try:
+                    det = extractor.extract(image if image.ndim == 3 else
+                                            cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
+                except Exception as err:
+                    log.exception("extractor failed on frame %d", h.seq)
+                    extractor.reset()
+                    det = Detection(False, reason=f"internal error: {err}")
+            bus.put(VERTICES, to_message(det, h.seq, h.stamp_ns, h.width, h.height))
+    finally:
+        if asking is not None:
+            asking.cancel()
