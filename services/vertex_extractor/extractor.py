@@ -209,8 +209,9 @@ class RhombusExtractor:
         """Seeds (x, y, radius px, grid cells) on the marker-coloured blobs of a 1-in-s pixel
         grid, largest first (at most ``max_candidates``)."""
         s = self.params.coarse_step
-        small, count, (i0, i1, j0, j1) = grid_mask(image, s, s // 2, self.params.colour.lut,
-                                                   self.params.colour.vector)
+        colour = self.params.colour
+        small, count, (i0, i1, j0, j1) = grid_mask(image, s, s // 2, colour.lut, colour.vector,
+                                                   colour.green_bound)
         if count == 0:
             return "no marker-coloured pixels"
         if count > 0.5 * small.size:
