@@ -10,6 +10,8 @@ Where we depart from the paper, keeping its spirit:
   grid search finds the marker without testing the whole frame.
 - The walk is incremental (each column's run found from the previous column's ends) and
   compiled (``scan.py``): its cost is the marker's width, not its area or the frame's size.
+  One seed's scans, fits, tests and cross-check below run in one compiled call
+  (``measure.py``); Python only words a refusal's reason.
 - Edge points are sub-pixel: the colour score is linear in the marker's coverage of a pixel,
   so the sum of coverages over a window across the edge gives the edge position exactly on
   area-sampled images.
