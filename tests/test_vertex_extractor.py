@@ -109,6 +109,20 @@ def test_the_cold_searchs_green_pretest_drops_no_marker_colour(model):
     assert model.green_bound.mean() < 200  # and it passes over something
 
 
+def test_every_refusal_of_the_compiled_measurement_has_its_reason():
+    from services.vertex_extractor import lines, measure
+    from services.vertex_extractor.extractor import _reason
+    statuses = [measure.NO_SEED, measure.BORDER, measure.SMALL_AREA, measure.FEW_COLUMNS,
+                measure.LOW_CONTRAST, measure.FEW_POINTS, measure.SHAPE, measure.UNCERTAIN,
+                measure.DISAGREE]
+    statuses += [measure.FIT + s for s in (lines.TOO_FEW_POINTS, lines.PARALLEL,
+                                           lines.HIDDEN_EDGE, lines.OUTSIDE_POINTS)]
+    statuses += [measure.VERDICT + s for s in range(lines.NOT_FINITE, lines.AREA_MISMATCH + 1)]
+    prm = RhombusExtractor()._prm
+    reasons = {_reason(s, np.zeros(measure.N_STATS), prm) for s in statuses}
+    assert len(reasons) == len(statuses) and all(reasons)
+
+
 def _bad_frames():
     r = render_marker(0.3)
     img = r.image
