@@ -151,8 +151,11 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
         return NO_SEED, stats, v, cov, np.empty((0, 2)), np.empty((0, 2))
     window = int(prm[WINDOW])
     outer = int(prm[OUTER])
+    # the columns read through a view typed like the rows' transposed one (any layout): one
+    # compiled scan for both (about half the first compile, no slower)
     status, area, n, contrast, u, d, box = scan.scan(
-        img, sx, sy, int(prm[MIN_LEN]), int(prm[DX]), window, lut, m, int(prm[EDGE]), outer)
+        img[0:H, 0:W], sx, sy, int(prm[MIN_LEN]), int(prm[DX]), window, lut, m,
+        int(prm[EDGE]), outer)
     found, u, d = _judge(status, area, n, contrast, u, d, W, H, prm, -1, -1, stats, v, cov)
     if found != FOUND:
         if status != scan.BORDER and box[3] - box[2] > 1.3 * (box[1] - box[0]) and (
