@@ -166,6 +166,9 @@ class RhombusExtractor:
                          f"{image.dtype}")
         if not image.flags.c_contiguous:
             image = np.ascontiguousarray(image)
+        if image.flags.writeable:  # the kernels compiled once, for read-only frames (the
+            image = image.view()  # service's): each variant costs about a minute at first
+            image.flags.writeable = False
         if self._seed is not None:
             det = self._extract_from(image, self._seed, tracked=True)
             if det.found:
@@ -387,8 +390,8 @@ _verdicts = {
 
 
 def warm_up(params: ExtractorParams | None = None) -> None:
-    """Compile (or load from numba's on-disk cache) the scan kernels for writable and
-    read-only frames, so that the first real frame is not delayed (first run ever: about 20 s;
+    """Compile (or load from numba's on-disk cache) the kernels, which take every frame
+    read-only, so that the first real frame is not delayed (first run ever: about a minute;
     later: well under a second)."""
     image = np.zeros((120, 160, 3), np.uint8)
     rhombus = np.array([[30, 60], [80, 20], [130, 60], [80, 100]], np.int32)
