@@ -210,19 +210,26 @@ def test_blur_is_found_right_with_an_uncertainty_that_covers_it():
 
 
 def test_the_column_and_row_scans_disagreeing_is_refused_with_its_reason():
-    from services.vertex_extractor.extractor import Detection
+    from services.vertex_extractor import extractor, measure
     v = np.array([[10.0, 50.0], [40.0, 10.0], [70.0, 50.0], [40.0, 90.0]])
     cov = np.tile(0.01 * np.eye(2), (4, 1, 1))
-    det = Detection(True, v, 0.1, 0.1, "", False, None, cov)
-    def rows(offset_px: tuple[float, float]) -> Detection:
-        return Detection(True, v + np.array(offset_px), 0.1, 0.1, "", False, None, cov)
 
-    near = RhombusExtractor._cross_checked(det, rows((0.0, 1.0)))
-    assert near.found and near.vertices_px is not None and near.vertices_cov_px2 is not None
-    assert np.allclose(near.vertices_px, v + np.array([0.0, 0.5]))
-    assert np.all(near.vertices_cov_px2[:, 1, 1] >= 0.25)  # half the disagreement, squared
-    far = RhombusExtractor._cross_checked(det, rows((3.0, 0.0)))
-    assert not far.found and "disagree" in far.reason
+    def checked(offset_px: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, float]:
+        mean, mean_cov = v.copy(), cov.copy()
+        gap = measure.cross_check(mean, mean_cov, v + np.array(offset_px), cov,
+                                  extractor.MEAN_COV_SCALE, extractor.GAP_COV_SCALE)
+        return mean, mean_cov, gap
+
+    near, near_cov, gap = checked((0.0, 1.0))
+    assert gap == 1.0 <= extractor.MAX_SCAN_DISAGREEMENT_PX
+    assert np.allclose(near, v + np.array([0.0, 0.5]))
+    assert np.all(near_cov[:, 1, 1] >= 0.25)  # half the disagreement, squared
+    _, _, gap = checked((3.0, 0.0))
+    assert gap > extractor.MAX_SCAN_DISAGREEMENT_PX
+    stats = np.zeros(measure.N_STATS)
+    stats[measure.GAP] = gap
+    prm = extractor.RhombusExtractor()._prm
+    assert "disagree by 3.0 px" in extractor._reason(measure.DISAGREE, stats, prm)
 
 
 def test_the_simulator_takes_its_hazards_from_the_deployment():

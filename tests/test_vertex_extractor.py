@@ -11,6 +11,7 @@ from schemas.keys import FRAME, VERTICES
 from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
 from services.sim.scenes import random_views
+from services.vertex_extractor.colour import ColourModel, grid_mask
 from services.vertex_extractor.extractor import RhombusExtractor
 from services.vertex_extractor.lines import best_split
 from tests.conftest import wait_alive_async, wait_matched
@@ -90,6 +91,36 @@ def test_optimal_split_finds_the_kink():
     y = np.where(x < 17, 100 - 1.3 * x, 100 - 1.3 * 17 + 1.3 * (x - 17))
     k = best_split(np.column_stack([x, y]), 3)
     assert k in (17, 18)
+
+
+@pytest.mark.parametrize("model", [
+    ColourModel(), ColourModel(transfer="linear"),
+    ColourModel(centre=(0.45, 0.1), covariance=((0.004, 0.001), (0.001, 0.002)),
+                max_distance=5.0)], ids=["default", "linear", "learned"])
+def test_the_cold_searchs_green_pretest_drops_no_marker_colour(model):
+    """The byte table that passes over too-green pixels is a necessary condition of the
+    interior test: the grid finds the same pixels with it as without, over all 2^24 colours."""
+    v = np.arange(256, dtype=np.uint8)
+    every = np.stack(np.meshgrid(v, v, v, indexing="ij"), -1).reshape(4096, 4096, 3)
+    with_pretest = grid_mask(every, 1, 0, model.lut, model.vector, model.green_bound)
+    without = grid_mask(every, 1, 0, model.lut, model.vector, np.full(256, 255, np.uint8))
+    assert with_pretest[1] == without[1] > 0
+    assert np.array_equal(with_pretest[0], without[0])
+    assert model.green_bound.mean() < 200  # and it passes over something
+
+
+def test_every_refusal_of_the_compiled_measurement_has_its_reason():
+    from services.vertex_extractor import lines, measure
+    from services.vertex_extractor.extractor import _reason
+    statuses = [measure.NO_SEED, measure.BORDER, measure.SMALL_AREA, measure.FEW_COLUMNS,
+                measure.LOW_CONTRAST, measure.FEW_POINTS, measure.SHAPE, measure.UNCERTAIN,
+                measure.DISAGREE]
+    statuses += [measure.FIT + s for s in (lines.TOO_FEW_POINTS, lines.PARALLEL,
+                                           lines.HIDDEN_EDGE, lines.OUTSIDE_POINTS)]
+    statuses += [measure.VERDICT + s for s in range(lines.NOT_FINITE, lines.AREA_MISMATCH + 1)]
+    prm = RhombusExtractor()._prm
+    reasons = {_reason(s, np.zeros(measure.N_STATS), prm) for s in statuses}
+    assert len(reasons) == len(statuses) and all(reasons)
 
 
 def _bad_frames():

@@ -80,6 +80,22 @@ class ColourModel(BaseModel):
         r, g = self.centre
         return np.array([r, g, k * c / det, -k * b / det, k * a / det, self.min_sum * 255.0])
 
+    @cached_property
+    def green_bound(self) -> np.ndarray:
+        """For each 8-bit value v, the largest 8-bit green a marker pixel can have when the
+        brighter of its red and blue is v (uint8, 256): a necessary condition of the interior
+        test, cheap enough to pass over most pixels before it (``grid_mask``).
+
+        Inside the ellipse the green chromaticity is at most c = g0 + sqrt(QA / det), so
+        G <= c (R + G + B), G <= c / (1 - c) (R + B) <= 2 c / (1 - c) max(R, B) (linear)."""
+        m = self.vector
+        c = m[G0] + math.sqrt(m[QA] / (m[QA] * m[QC] - m[QB] * m[QB]))
+        if c >= 1.0:
+            return np.full(256, 255, np.uint8)
+        limit = 2.0 * c / (1.0 - c) * self.lut * (1.0 + 1e-6) + 1e-9  # (a margin for rounding)
+        bound = np.searchsorted(self.lut, limit, side="right") - 1
+        return np.clip(bound, 0, 255).astype(np.uint8)
+
     def chroma_distance(self, bgr: np.ndarray) -> np.ndarray:
         """Mahalanobis distance of each pixel's chromaticity from the centre (for tools)."""
         lin = self.lut[np.asarray(bgr, np.uint8)]
@@ -129,10 +145,11 @@ def chroma_direction(b: float, g: float, r: float) -> np.ndarray:
 
 
 @njit()
-def grid_mask(img: np.ndarray, step: int, offset: int, lut: np.ndarray, m: np.ndarray
-              ) -> tuple[np.ndarray, int, tuple[int, int, int, int]]:
+def grid_mask(img: np.ndarray, step: int, offset: int, lut: np.ndarray, m: np.ndarray,
+              green_bound: np.ndarray) -> tuple[np.ndarray, int, tuple[int, int, int, int]]:
     """Interior mask on the grid (offset + i step, offset + j step), its count, and the
-    bounding box (i0, i1, j0, j1) of the marked cells, inclusive (empty: i0 > i1)."""
+    bounding box (i0, i1, j0, j1) of the marked cells, inclusive (empty: i0 > i1).
+    ``green_bound``: ``ColourModel.green_bound``, which passes over most pixels cheaply."""
     h = (img.shape[0] - offset + step - 1) // step
     w = (img.shape[1] - offset + step - 1) // step
     out = np.zeros((h, w), np.uint8)
@@ -141,7 +158,10 @@ def grid_mask(img: np.ndarray, step: int, offset: int, lut: np.ndarray, m: np.nd
     for i in range(h):
         y = offset + i * step
         for j in range(w):
-            if is_marker(img, y, offset + j * step, lut, m):
+            x = offset + j * step
+            if img[y, x, 1] > green_bound[max(img[y, x, 0], img[y, x, 2])]:
+                continue  # too green to be the marker
+            if is_marker(img, y, x, lut, m):
                 out[i, j] = 255
                 count += 1
                 i0, i1, j0, j1 = min(i0, i), max(i1, i), min(j0, j), max(j1, j)

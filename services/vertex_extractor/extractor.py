@@ -10,6 +10,8 @@ Where we depart from the paper, keeping its spirit:
   grid search finds the marker without testing the whole frame.
 - The walk is incremental (each column's run found from the previous column's ends) and
   compiled (``scan.py``): its cost is the marker's width, not its area or the frame's size.
+  One seed's scans, fits, tests and cross-check below run in one compiled call
+  (``measure.py``); Python only words a refusal's reason.
 - Edge points are sub-pixel: the colour score is linear in the marker's coverage of a pixel,
   so the sum of coverages over a window across the edge gives the edge position exactly on
   area-sampled images.
@@ -41,7 +43,7 @@ Where we depart from the paper, keeping its spirit:
   (``COV_SCALE``); one whose largest sigma exceeds ``max_vertex_sigma_px`` is refused.
 - A tall, narrow marker (steep views) is scanned along its rows when its columns are too few;
   any other marker is scanned along its rows as well and the two results checked against
-  each other (``_cross_checked``): blur along the columns or a shadow's boundary inside one
+  each other (``measure.cross_check``): blur along the columns or a shadow's boundary inside one
   scan's window moves that scan's edges; the vertices are the two scans' mean, their
   disagreement grows the covariance, and a large one is refused.
 
@@ -64,7 +66,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.core.camera import CameraModel
 from services.core.mounts import Geometry
-from services.vertex_extractor import lines, paper, scan, shape
+from services.vertex_extractor import lines, measure, paper, scan, shape
 from services.vertex_extractor.colour import ColourModel, grid_mask
 from services.vertex_extractor.shape import ShapeParams, ShapeTest
 
@@ -162,9 +164,11 @@ class RhombusExtractor:
             min_len_px=min(p.min_len_px, p.small_min_len_px),
             min_points_per_edge=min(p.min_points_per_edge, p.small_min_points_per_edge),
             min_area_px=min(p.min_area_px, p.small_min_area_px)))
+        self._prm = _params_vector(p, diagonal_ratio)
+        self._prm_small = _params_vector(self._small, diagonal_ratio)
         self._seed: tuple[int, int, int] | None = None  # x, y, search radius (px)
         self._shape: ShapeTest | None = None
-        self._loose = (self.params, self._small)  # the weak shape test's bounds, loosened
+        self._loose = (self._prm, self._prm_small)  # the weak shape test's bounds, loosened
 
     def use_intrinsics(self, camera: CameraModel | None, geometry: Geometry | None = None
                        ) -> None:
@@ -180,7 +184,8 @@ class RhombusExtractor:
                 max_off_normal_deg=min(p.max_off_normal_deg + slack, 89.0),
                 max_roll_deg=min(p.max_roll_deg + slack, 180.0),
                 max_pitch_deg=min(p.max_pitch_deg + slack, 90.0)))
-        self._loose = (loose(self.params), loose(self._small))
+        self._loose = (_params_vector(loose(self.params), self.diagonal_ratio),
+                       _params_vector(loose(self._small), self.diagonal_ratio))
 
     @property
     def intrinsics(self) -> CameraModel | None:
@@ -196,6 +201,9 @@ class RhombusExtractor:
                          f"{image.dtype}")
         if not image.flags.c_contiguous:
             image = np.ascontiguousarray(image)
+        if image.flags.writeable:  # the kernels compiled once, for read-only frames (the
+            image = image.view()  # service's): each variant costs about a minute at first
+            image.flags.writeable = False
         if self._seed is not None:
             det = self._extract_from(image, self._seed, tracked=True)
             if det.found:
@@ -241,8 +249,9 @@ class RhombusExtractor:
         """Seeds (x, y, radius px, grid cells) on the marker-coloured blobs of a 1-in-s pixel
         grid, largest first (at most ``max_candidates``)."""
         s = self.params.coarse_step
-        small, count, (i0, i1, j0, j1) = grid_mask(image, s, s // 2, self.params.colour.lut,
-                                                   self.params.colour.vector)
+        colour = self.params.colour
+        small, count, (i0, i1, j0, j1) = grid_mask(image, s, s // 2, colour.lut, colour.vector,
+                                                   colour.green_bound)
         if count == 0:
             return "no marker-coloured pixels"
         if count > 0.5 * small.size:
@@ -264,24 +273,38 @@ class RhombusExtractor:
 
     def _extract_from(self, image: np.ndarray, seed: tuple[int, int, int],
                       tracked: bool) -> Detection:
+        """The marker at or near ``seed`` (x, y, search radius px), measured and judged in one
+        compiled call (``measure.measure``); a marker too small for the parameters is tried
+        again with the small markers' ones."""
         p = self.params
         lut, model = p.colour.lut, p.colour.vector
-        sx, sy = scan.find_seed(image, seed[0], seed[1], seed[2], lut, model)
-        if sx < 0:
-            self._seed = None
-            return _miss("no marker-coloured pixels at the seed", tracked)
         test = self._shape if self._shape is not None and self._shape.size == (
             image.shape[1], image.shape[0]) else None  # intrinsics for this frame size
         if p.method == "paper":
-            det = self._paper(image, sx, sy, tracked)
-        else:
-            loose, small = self._loose if test is not None else (p, self._small)
-            det = self._measure(image, sx, sy, tracked, loose)
-            if not det.found and det.reason.startswith(_FEW):  # a small marker?
-                det = self._measure(image, sx, sy, tracked, small)
-        if det.found and test is not None and det.vertices_px is not None and (
-                reason := test.refusal(det.vertices_px, det.vertices_cov_px2)):
-            det = _miss(reason, tracked)
+            return self._paper(image, seed, tracked)
+        prm, prm_small = self._loose if test is not None else (self._prm, self._prm_small)
+        status, stats, v, cov, u, d = measure.measure(image, seed[0], seed[1], seed[2], lut,
+                                                      model, prm)
+        if status in measure.FEW:  # a small marker?
+            prm = prm_small
+            status, stats, v, cov, u, d = measure.measure(image, seed[0], seed[1], seed[2],
+                                                          lut, model, prm)
+        if status != measure.FOUND:
+            self._seed = None
+            return _miss(_reason(status, stats, prm), tracked)
+        if test is not None and (reason := test.refusal(v, cov)):
+            self._seed = None
+            return _miss(reason, tracked)
+        self._seed = (int(stats[measure.SEED_X]), int(stats[measure.SEED_Y]),
+                      int(stats[measure.SEED_RADIUS]))
+        return Detection(True, v, float(stats[measure.AREA_RATIO]),
+                         float(stats[measure.RESIDUAL]), "", tracked, (u, d), cov)
+
+    def _paper(self, image: np.ndarray, seed: tuple[int, int, int], tracked: bool
+               ) -> Detection:
+        """Tables 1 and 2 as published (``paper.py``), judged by the same plausibility check
+        (without the line residual, which the paper does not have)."""
+        det = self._paper_from(image, seed, tracked)
         if det.found:
             assert det.vertices_px is not None
             (x0, y0), (x1, y1), (x2, y2), (x3, y3) = det.vertices_px.tolist()  # plain floats:
@@ -292,69 +315,14 @@ class RhombusExtractor:
             self._seed = None
         return det
 
-    def _measure(self, image: np.ndarray, sx: int, sy: int, tracked: bool,
-                 p: ExtractorParams) -> Detection:
-        """Scan from the marker pixel (sx, sy) and judge, along the columns and, for a tall
-        narrow marker whose columns are too few, along the rows."""
-        H, W = image.shape[:2]
-        status, area, n, contrast, u, d, box = scan.scan(
-            image, sx, sy, p.min_len_px, p.dx, p.window, p.colour.lut, p.colour.vector,
-            _EDGES[p.edge], p.outside_rows)
-        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p, None, image)
-        x0, x1, y0, y1 = (int(b) for b in box)
-        if not det.found and status != scan.BORDER and y1 - y0 > 1.3 * (x1 - x0) and \
-                det.reason.startswith(_FEW):
-            det = self._transposed(image, sx, sy, (x0, x1, y0, y1), tracked, p) or det
-        elif det.found and CROSS_CHECK:
-            det = self._cross_checked(det, self._transposed(image, sx, sy, (x0, x1, y0, y1),
-                                                            tracked, p))
-        return det
-
-    @staticmethod
-    def _cross_checked(det: Detection, rows: Detection | None) -> Detection:
-        """The column scan's detection checked against the row scan's of the same marker.
-
-        Each scan measures an edge across its own direction: blur along the columns (motion,
-        defocus) or a shadow's boundary running inside one scan's window moves that scan's
-        edges, not (as much) the other's. Where both find the marker, the vertices are their
-        mean, whose covariance is the scans' (scaled) plus their disagreement² (scaled); a
-        disagreement beyond ``MAX_SCAN_DISAGREEMENT_PX`` is refused. Where only the columns
-        find it (a short, wide marker), their detection stands."""
-        if rows is None or rows.vertices_px is None or rows.vertices_cov_px2 is None or \
-                det.vertices_px is None or det.vertices_cov_px2 is None:
-            return det
-        gap = np.sqrt(((det.vertices_px - rows.vertices_px) ** 2).sum(axis=1))
-        worst = float(gap.max())
-        if worst > MAX_SCAN_DISAGREEMENT_PX:
-            return _miss(f"the column and row scans disagree by {worst:.1f} px (a shadow's "
-                         f"boundary along an edge, or blur)", det.tracked)
-        v = 0.5 * (det.vertices_px + rows.vertices_px)
-        cov = (MEAN_COV_SCALE * 0.5 * (det.vertices_cov_px2 + rows.vertices_cov_px2)
-               + (GAP_COV_SCALE * gap * gap)[:, None, None] * np.eye(2))
-        return Detection(True, v, det.area_ratio, det.residual_px, "", det.tracked,
-                         det.edge_points, cov)
-
-    def _transposed(self, image: np.ndarray, sx: int, sy: int, box: tuple[int, int, int, int],
-                    tracked: bool, p: ExtractorParams) -> Detection | None:
-        """A tall, narrow marker (steep views, small markers) scanned along its rows: the
-        paper's column scan on the transposed region around it. None when that fails too."""
-        H, W = image.shape[:2]
-        m = 3 * (p.window + max(p.outside_rows, p.window)) + 2 * scan.LOCAL_ROWS + 2
-        x0, x1, y0, y1 = box
-        x0, y0 = max(x0 - m, 0), max(y0 - m, 0)
-        x1, y1 = min(x1 + m, W - 1), min(y1 + m, H - 1)
-        roi = cv2.transpose(image[y0:y1 + 1, x0:x1 + 1])  # far faster than numpy's copy
-        status, area, n, contrast, u, d, _ = scan.scan(
-            roi, sy - y0, sx - x0, p.min_len_px, p.dx, p.window, p.colour.lut,
-            p.colour.vector, _EDGES[p.edge], p.outside_rows)
-        det = self._judge(status, area, n, contrast, u, d, (W, H), tracked, p, (x0, y0), roi)
-        return det if det.found else None
-
-    def _paper(self, image: np.ndarray, sx: int, sy: int, tracked: bool) -> Detection:
-        """Tables 1 and 2 as published (``paper.py``), judged by the same plausibility check
-        (without the line residual, which the paper does not have)."""
+    def _paper_from(self, image: np.ndarray, seed: tuple[int, int, int], tracked: bool
+                    ) -> Detection:
         p = self.params
         H, W = image.shape[:2]
+        sx, sy = scan.find_seed(image, seed[0], seed[1], seed[2], p.colour.lut,
+                                p.colour.vector)
+        if sx < 0:
+            return _miss("no marker-coloured pixels at the seed", tracked)
         status, u, d = paper.table1(image, sx, sy, p.min_len_px, p.dx, p.colour.lut,
                                     p.colour.vector)
         if status == paper.BORDER:
@@ -374,61 +342,6 @@ class RhombusExtractor:
                          tracked)
         return Detection(True, v, min(quad_area / (W * H), 1.0), 0.0, "", tracked, (u, d))
 
-    def _judge(self, status: int, area: int, n: int, contrast: float, u: np.ndarray,
-               d: np.ndarray, size: tuple[int, int], tracked: bool, p: ExtractorParams,
-               transposed: tuple[int, int] | None = None, image: np.ndarray | None = None
-               ) -> Detection:
-        """The scan's result as a detection or a refusal. ``transposed``: the scan ran on a
-        transposed region whose corner is at (x, y) of the image; ``image``: what the scan
-        ran on, to try again without the points of a notch in the outline (an arm across an
-        edge: ``lines.on_hull``) where the points as they are fail."""
-        if status == scan.BORDER:
-            return _miss("marker touches the image border", tracked)
-        if area < p.min_area_px:
-            return _miss(f"marker too small ({area} px < {p.min_area_px:.0f} px)", tracked)
-        if n < 2 * p.min_points_per_edge + 4:
-            return _miss(f"marker too small ({n} usable columns)", tracked)
-        if status == scan.LOW_CONTRAST:
-            return _miss(f"marker contrast too low ({contrast:.0f} grey levels)", tracked)
-        u, d, cx, cy = lines.finite_points(u, d)  # without points where no edge was measured
-        if image is not None:  # as they are; where that fails, without a notch's points
-            det = self._judge(status, area, n, contrast, u, d, size, tracked, p, transposed)
-            if det.found:
-                return det
-            u2 = u[scan.notch_kept(image, u, lines.on_hull(u, True, lines.HULL_TOLERANCE_PX), -1)]
-            d2 = d[scan.notch_kept(image, d, lines.on_hull(d, False, lines.HULL_TOLERANCE_PX), 1)]
-            if u2.shape[0] == u.shape[0] and d2.shape[0] == d.shape[0]:
-                return det
-            again = self._judge(status, area, n, contrast, u2, d2, size, tracked, p, transposed)
-            return again if again.found else det
-        if u.shape[0] < 2 * p.min_points_per_edge + 4 or d.shape[0] < 2 * p.min_points_per_edge + 4:
-            return _miss("too few measurable edge points (shadowed, hidden or washed out)",
-                         tracked)
-        fit, v, residual, cov, sigma = lines.fit_rhombus_robust(
-            u, d, p.min_points_per_edge, 2, cx, cy, p.max_outside_share, COV_SCALE,
-            COV_FLOOR_PX2)
-        if fit != lines.FIT_OK:
-            return _miss(_fits[fit], tracked)
-        if transposed is not None:  # back to the image: (x', y') = (y, x), L T R B = T' L' B' R'
-            ox, oy = transposed
-            v = v[[1, 0, 3, 2]][:, ::-1] + (ox, oy)
-            cov = cov[[1, 0, 3, 2]][:, ::-1, ::-1]
-            u, d = u[:, ::-1] + (ox, oy), d[:, ::-1] + (ox, oy)
-        verdict, quad_area, amin, amax = lines.check_rhombus(
-            v, residual, float(area), size[0], size[1], p.min_angle_deg, p.max_residual_px)
-        if verdict != lines.PLAUSIBLE:
-            return _miss(_verdicts[verdict].format(residual=residual, area=quad_area,
-                                                   blob=area, amin=amin, amax=amax), tracked)
-        tilt, roll, pitch, _ = lines.weak_view(v, self.diagonal_ratio)
-        if tilt > p.max_off_normal_deg or roll > p.max_roll_deg or pitch > p.max_pitch_deg:
-            return _miss(f"not the marker's shape in any expected view (as the marker it would "
-                         f"be {tilt:.0f} deg off its normal, rolled {roll:.0f} deg, "
-                         f"{pitch:.0f} deg about its horizontal axis)", tracked)
-        if sigma > p.max_vertex_sigma_px:
-            return _miss(f"vertex uncertainty too large ({sigma:.2f} px, 1 sigma)", tracked)
-        ratio = min(quad_area / (size[0] * size[1]), 1.0)
-        return Detection(True, v, ratio, residual, "", tracked, (u, d), cov)
-
 
 #: The line fits' covariance treats edge points as independent; neighbouring columns share
 #: pixels through the optics blur, the demosaicing and JPEG, so it is scaled (and floored by
@@ -447,7 +360,56 @@ CROSS_CHECK = True
 MAX_SCAN_DISAGREEMENT_PX = 2.5
 GAP_COV_SCALE = 0.5
 
-_FEW = ("too few", "marker too small (")
+
+def _params_vector(p: ExtractorParams, diagonal_ratio: float) -> np.ndarray:
+    """The parameters as ``measure.measure`` takes them (its layout constants)."""
+    prm = np.zeros(measure.N_PARAMS)
+    prm[measure.MIN_LEN], prm[measure.DX], prm[measure.WINDOW] = p.min_len_px, p.dx, p.window
+    prm[measure.EDGE], prm[measure.OUTER] = _EDGES[p.edge], p.outside_rows
+    prm[measure.MIN_AREA], prm[measure.MIN_POINTS] = p.min_area_px, p.min_points_per_edge
+    prm[measure.MAX_OUTSIDE_SHARE] = p.max_outside_share
+    prm[measure.COV_SCALE], prm[measure.COV_FLOOR] = COV_SCALE, COV_FLOOR_PX2
+    prm[measure.MIN_ANGLE], prm[measure.MAX_RESIDUAL] = p.min_angle_deg, p.max_residual_px
+    prm[measure.DIAGONAL_RATIO] = diagonal_ratio
+    prm[measure.MAX_OFF_NORMAL], prm[measure.MAX_ROLL] = p.max_off_normal_deg, p.max_roll_deg
+    prm[measure.MAX_PITCH], prm[measure.MAX_SIGMA] = p.max_pitch_deg, p.max_vertex_sigma_px
+    prm[measure.CROSS_CHECK], prm[measure.MAX_GAP] = CROSS_CHECK, MAX_SCAN_DISAGREEMENT_PX
+    prm[measure.MEAN_COV_SCALE], prm[measure.GAP_COV_SCALE] = MEAN_COV_SCALE, GAP_COV_SCALE
+    return prm
+
+
+def _reason(status: int, s: np.ndarray, prm: np.ndarray) -> str:
+    """A refusal's message from ``measure.measure``'s status and figures ``s``."""
+    m = measure
+    if status >= m.VERDICT and status < m.SHAPE:
+        return _verdicts[status - m.VERDICT].format(
+            residual=s[m.RESIDUAL], area=s[m.QUAD_AREA], blob=int(s[m.AREA]),
+            amin=s[m.ANGLE_MIN], amax=s[m.ANGLE_MAX])
+    if status >= m.FIT and status < m.VERDICT:
+        return _fits[status - m.FIT]
+    if status == m.SMALL_AREA:
+        return f"marker too small ({int(s[m.AREA])} px < {prm[m.MIN_AREA]:.0f} px)"
+    if status == m.FEW_COLUMNS:
+        return f"marker too small ({int(s[m.COLUMNS])} usable columns)"
+    if status == m.LOW_CONTRAST:
+        return f"marker contrast too low ({s[m.CONTRAST]:.0f} grey levels)"
+    if status == m.SHAPE:
+        return (f"not the marker's shape in any expected view (as the marker it would be "
+                f"{s[m.TILT]:.0f} deg off its normal, rolled {s[m.ROLL]:.0f} deg, "
+                f"{s[m.PITCH]:.0f} deg about its horizontal axis)")
+    if status == m.UNCERTAIN:
+        return f"vertex uncertainty too large ({s[m.SIGMA]:.2f} px, 1 sigma)"
+    if status == m.DISAGREE:
+        return (f"the column and row scans disagree by {s[m.GAP]:.1f} px (a shadow's "
+                f"boundary along an edge, or blur)")
+    return _refusals[status]
+
+
+_refusals = {
+    measure.NO_SEED: "no marker-coloured pixels at the seed",
+    measure.BORDER: "marker touches the image border",
+    measure.FEW_POINTS: "too few measurable edge points (shadowed, hidden or washed out)",
+}
 _fits = {
     lines.TOO_FEW_POINTS: "too few edge points on one side (partly hidden?)",
     lines.PARALLEL: "parallel edges: not a rhombus",
@@ -468,8 +430,8 @@ _verdicts = {
 
 
 def warm_up(params: ExtractorParams | None = None) -> None:
-    """Compile (or load from numba's on-disk cache) the scan kernels for writable and
-    read-only frames, so that the first real frame is not delayed (first run ever: about 20 s;
+    """Compile (or load from numba's on-disk cache) the kernels, which take every frame
+    read-only, so that the first real frame is not delayed (first run ever: about a minute;
     later: well under a second)."""
     image = np.zeros((120, 160, 3), np.uint8)
     rhombus = np.array([[30, 60], [80, 20], [130, 60], [80, 100]], np.int32)

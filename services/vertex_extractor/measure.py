@@ -1,0 +1,221 @@
+"""One seed's measurement in one compiled call: the column scan, its line fits and tests, the
+row scan of the region around the marker and the two scans' cross-check.
+
+``RhombusExtractor`` did this in Python with about ten kernel calls per frame and numpy glue
+between them (a copy of the transposed region, reordering, the mean of the two scans); their
+per-call costs were most of a tracked frame's time. Here the row scan reads a transposed
+*view* of the region (no copy) and every test runs in the kernel; Python only turns a
+refusal's status and figures into its message (``extractor._reasons``).
+
+Statuses: ``FOUND``, or why not. ``FIT + s`` carries ``lines.fit_rhombus_robust``'s status
+``s``, ``VERDICT + s`` ``lines.check_rhombus``'s. The figures a message needs are in the
+``stats`` vector (layout below).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from services.core.jit import njit
+from services.vertex_extractor import lines, scan
+
+FOUND, NO_SEED, BORDER, SMALL_AREA, FEW_COLUMNS, LOW_CONTRAST, FEW_POINTS = range(7)
+FIT, VERDICT, SHAPE, UNCERTAIN, DISAGREE = 10, 20, 30, 31, 32
+#: statuses of a marker that may be too small for the parameters (a second try, or the
+#: row scan for a tall narrow one)
+FEW = (SMALL_AREA, FEW_COLUMNS, FEW_POINTS, FIT + lines.TOO_FEW_POINTS)
+
+# the parameter vector (``params_vector``)
+(MIN_LEN, DX, WINDOW, EDGE, OUTER, MIN_AREA, MIN_POINTS, MAX_OUTSIDE_SHARE, COV_SCALE,
+ COV_FLOOR, MIN_ANGLE, MAX_RESIDUAL, DIAGONAL_RATIO, MAX_OFF_NORMAL, MAX_ROLL, MAX_PITCH,
+ MAX_SIGMA, CROSS_CHECK, MAX_GAP, MEAN_COV_SCALE, GAP_COV_SCALE, N_PARAMS) = range(22)
+# the figures returned beside the status
+(AREA, COLUMNS, CONTRAST, RESIDUAL, QUAD_AREA, ANGLE_MIN, ANGLE_MAX, TILT, ROLL, PITCH,
+ SIGMA, GAP, AREA_RATIO, SEED_X, SEED_Y, SEED_RADIUS, N_STATS) = range(17)
+
+
+@njit()
+def cross_check(v: np.ndarray, cov: np.ndarray, v_rows: np.ndarray, cov_rows: np.ndarray,
+                mean_cov_scale: float, gap_cov_scale: float) -> float:
+    """The column scan's vertices v (4, 2) and covariance cov (4, 2, 2) px² replaced, in
+    place, by their mean with the row scan's, whose covariance is the scans' mean one scaled
+    plus the squared disagreement scaled; returns the largest disagreement (px)."""
+    worst = 0.0
+    for i in range(4):
+        gx, gy = v[i, 0] - v_rows[i, 0], v[i, 1] - v_rows[i, 1]
+        gap = math.sqrt(gx * gx + gy * gy)
+        worst = max(worst, gap)
+        grow = gap_cov_scale * gap * gap
+        v[i, 0] = 0.5 * (v[i, 0] + v_rows[i, 0])
+        v[i, 1] = 0.5 * (v[i, 1] + v_rows[i, 1])
+        for r in range(2):
+            for c in range(2):
+                cov[i, r, c] = mean_cov_scale * 0.5 * (cov[i, r, c] + cov_rows[i, r, c]) + (
+                    grow if r == c else 0.0)
+    return worst
+
+
+@njit()
+def _judge(img, status, area, n, contrast, u, d, width, height, prm, ox, oy,  # type: ignore[no-untyped-def]
+           stats, v_out, cov_out):
+    """The scan's result tested as the marker: its status, and the finite edge points (in
+    the image's frame). ``img``: what the scan ran on; ``ox`` >= 0: it ran on the transposed
+    region whose corner is at (ox, oy) of the image."""
+    stats[AREA], stats[COLUMNS], stats[CONTRAST] = area, n, contrast
+    if status == scan.BORDER:
+        return BORDER, u, d
+    if area < prm[MIN_AREA]:
+        return SMALL_AREA, u, d
+    min_points = int(prm[MIN_POINTS])
+    if n < 2 * min_points + 4:
+        return FEW_COLUMNS, u, d
+    if status == scan.LOW_CONTRAST:
+        return LOW_CONTRAST, u, d
+    u, d, cx, cy = lines.finite_points(u, d)  # without points where no edge was measured
+    found, u_out, d_out = _tests(u, d, cx, cy, area, width, height, prm, ox, oy, stats, v_out,
+                                 cov_out)
+    if found == FOUND:
+        return found, u_out, d_out
+    # where the points as they are fail, again without the points of a notch in the outline
+    # (the marker is convex: an arm across an edge), unless the notch is a clipped highlight
+    keep_u = scan.notch_kept(img, u, lines.on_hull(u, True, lines.HULL_TOLERANCE_PX), -1)
+    keep_d = scan.notch_kept(img, d, lines.on_hull(d, False, lines.HULL_TOLERANCE_PX), 1)
+    if keep_u.all() and keep_d.all():
+        return found, u_out, d_out
+    u2, d2, cx2, cy2 = lines.finite_points(u[keep_u], d[keep_d])
+    stats_again = stats.copy()
+    again, u_again, d_again = _tests(u2, d2, cx2, cy2, area, width, height, prm, ox, oy,
+                                     stats_again, v_out, cov_out)
+    if again != FOUND:
+        return found, u_out, d_out
+    stats[:] = stats_again
+    return again, u_again, d_again
+
+
+@njit()
+def _tests(u, d, cx, cy, area, width, height, prm, ox, oy,  # type: ignore[no-untyped-def]
+           stats, v_out, cov_out):
+    """The finite edge points u, d (centre cx, cy) fitted and tested as the marker; the
+    vertices and covariance go to v_out, cov_out only when found."""
+    min_points = int(prm[MIN_POINTS])
+    if u.shape[0] < 2 * min_points + 4 or d.shape[0] < 2 * min_points + 4:
+        return FEW_POINTS, u, d
+    fit, v, residual, cov, sigma = lines.fit_rhombus_robust(
+        u, d, min_points, 2, cx, cy, prm[MAX_OUTSIDE_SHARE], prm[COV_SCALE], prm[COV_FLOOR])
+    stats[RESIDUAL], stats[SIGMA] = residual, sigma
+    if fit != lines.FIT_OK:
+        return FIT + fit, u, d
+    if ox >= 0:  # back to the image: (x', y') = (y, x), L T R B = T' L' B' R'
+        t = v.copy()
+        tc = cov.copy()
+        for i in range(4):
+            j = (1, 0, 3, 2)[i]
+            v[i, 0], v[i, 1] = t[j, 1] + ox, t[j, 0] + oy
+            cov[i, 0, 0], cov[i, 0, 1] = tc[j, 1, 1], tc[j, 1, 0]
+            cov[i, 1, 0], cov[i, 1, 1] = tc[j, 0, 1], tc[j, 0, 0]
+        ut = np.empty_like(u)
+        dt = np.empty_like(d)
+        for i in range(u.shape[0]):
+            ut[i, 0], ut[i, 1] = u[i, 1] + ox, u[i, 0] + oy
+        for i in range(d.shape[0]):
+            dt[i, 0], dt[i, 1] = d[i, 1] + ox, d[i, 0] + oy
+        u, d = ut, dt
+    verdict, quad_area, amin, amax = lines.check_rhombus(
+        v, residual, float(area), width, height, prm[MIN_ANGLE], prm[MAX_RESIDUAL])
+    stats[QUAD_AREA], stats[ANGLE_MIN], stats[ANGLE_MAX] = quad_area, amin, amax
+    if verdict != lines.PLAUSIBLE:
+        return VERDICT + verdict, u, d
+    tilt, roll, pitch, _ = lines.weak_view(v, prm[DIAGONAL_RATIO])
+    stats[TILT], stats[ROLL], stats[PITCH] = tilt, roll, pitch
+    if tilt > prm[MAX_OFF_NORMAL] or roll > prm[MAX_ROLL] or pitch > prm[MAX_PITCH]:
+        return SHAPE, u, d
+    if sigma > prm[MAX_SIGMA]:
+        return UNCERTAIN, u, d
+    stats[AREA_RATIO] = min(quad_area / (width * height), 1.0)
+    v_out[:] = v
+    cov_out[:] = cov
+    return FOUND, u, d
+
+
+@njit()
+def _rows(img, sx, sy, box, lut, m, prm, stats, v, cov):  # type: ignore[no-untyped-def]
+    """The marker (whose column scan's box is x0, x1, y0, y1) scanned along its rows: the
+    column scan on a transposed view of the region around it."""
+    H, W = img.shape[0], img.shape[1]
+    window = int(prm[WINDOW])
+    outer = int(prm[OUTER])
+    margin = 3 * (window + max(outer, window)) + 2 * scan.LOCAL_ROWS + 2
+    x0, y0 = max(box[0] - margin, 0), max(box[2] - margin, 0)
+    x1, y1 = min(box[1] + margin, W - 1), min(box[3] + margin, H - 1)
+    roi = img[y0:y1 + 1, x0:x1 + 1].transpose(1, 0, 2)
+    status, area, n, contrast, u, d, _ = scan.scan(
+        roi, sy - y0, sx - x0, int(prm[MIN_LEN]), int(prm[DX]), window, lut, m,
+        int(prm[EDGE]), outer)
+    return _judge(roi, status, area, n, contrast, u, d, W, H, prm, x0, y0, stats, v, cov)
+
+
+@njit()
+def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np.ndarray,
+            prm: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                                      np.ndarray]:
+    """The marker at or near the seed (x, y) (a marker pixel within ``radius`` px) measured
+    along the columns and judged; then along the rows: for a tall narrow marker whose
+    columns are too few instead, otherwise as a cross-check (``cross_check``; refused when
+    the scans disagree by more than ``prm[MAX_GAP]`` px).
+
+    Returns (status, stats, vertices (4, 2) px, covariance (4, 2, 2) px², U and D edge
+    points (n, 2) px); when found, the next frame's seed is in ``stats``.
+    """
+    H, W = img.shape[0], img.shape[1]
+    stats = np.zeros(N_STATS)
+    v = np.zeros((4, 2))
+    cov = np.zeros((4, 2, 2))
+    sx, sy = scan.find_seed(img, x, y, radius, lut, m)
+    if sx < 0:
+        return NO_SEED, stats, v, cov, np.empty((0, 2)), np.empty((0, 2))
+    window = int(prm[WINDOW])
+    outer = int(prm[OUTER])
+    # the columns read through a view typed like the rows' transposed one (any layout): one
+    # compiled scan for both (about half the first compile, no slower)
+    status, area, n, contrast, u, d, box = scan.scan(
+        img[0:H, 0:W], sx, sy, int(prm[MIN_LEN]), int(prm[DX]), window, lut, m,
+        int(prm[EDGE]), outer)
+    found, u, d = _judge(img, status, area, n, contrast, u, d, W, H, prm, -1, -1, stats, v,
+                         cov)
+    if found != FOUND:
+        if status != scan.BORDER and box[3] - box[2] > 1.3 * (box[1] - box[0]) and (
+                found == SMALL_AREA or found == FEW_COLUMNS or found == FEW_POINTS or
+                found == FIT + lines.TOO_FEW_POINTS):
+            stats_rows = np.zeros(N_STATS)
+            rows, u_rows, d_rows = _rows(img, sx, sy, box, lut, m, prm, stats_rows, v, cov)
+            if rows == FOUND:
+                _seed(v, stats_rows)
+                return FOUND, stats_rows, v, cov, u_rows, d_rows
+        return found, stats, v, cov, u, d
+    if prm[CROSS_CHECK] > 0:
+        v_rows = np.zeros((4, 2))
+        cov_rows = np.zeros((4, 2, 2))
+        rows, _, _ = _rows(img, sx, sy, box, lut, m, prm, np.zeros(N_STATS), v_rows, cov_rows)
+        if rows == FOUND:
+            vc, cc = v.copy(), cov.copy()
+            stats[GAP] = cross_check(vc, cc, v_rows, cov_rows, prm[MEAN_COV_SCALE],
+                                     prm[GAP_COV_SCALE])
+            if stats[GAP] > prm[MAX_GAP]:
+                return DISAGREE, stats, v, cov, u, d
+            v, cov = vc, cc
+    _seed(v, stats)
+    return FOUND, stats, v, cov, u, d
+
+
+@njit()
+def _seed(v, stats):  # type: ignore[no-untyped-def]
+    """The next frame's seed: the vertices' centre, a quarter of the box's smaller side."""
+    x0, x1, x2, x3 = v[0, 0], v[1, 0], v[2, 0], v[3, 0]
+    y0, y1, y2, y3 = v[0, 1], v[1, 1], v[2, 1], v[3, 1]
+    w = max(max(max(x0, x1), x2), x3) - min(min(min(x0, x1), x2), x3)
+    h = max(max(max(y0, y1), y2), y3) - min(min(min(y0, y1), y2), y3)
+    stats[SEED_X] = int((((x0 + x1) + x2) + x3) / 4)
+    stats[SEED_Y] = int((((y0 + y1) + y2) + y3) / 4)
+    stats[SEED_RADIUS] = max(4, int(0.25 * min(w, h)))
