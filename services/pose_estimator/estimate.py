@@ -18,6 +18,7 @@ from services.pose_estimator.p4p import (
     OK,
     PoseError,
     covariance_6,
+    exp_so3,
     ippe4,
     map_pose,
     raise_for,
@@ -106,7 +107,7 @@ def estimate_marker_pose(camera: CameraModel, vertices_px: np.ndarray, marker_po
     q = undistort_px(camera, v)
     sigma_n = sigma_px / (0.5 * (camera.K[0, 0] + camera.K[1, 1]))
     continuity_w = 0.0 if previous_R is None else sigma_n / continuity_sigma_rad
-    up = _NO_UP if up_cam is None else np.asarray(up_cam, np.float64)
+    up = _NO_UP if up_cam is None else np.ascontiguousarray(up_cam, np.float64)
     if up_cam is not None and height_m is not None and refine_steps > 0:
         up = elevation_up(model, q, up, height_m)
 
@@ -147,6 +148,7 @@ def estimate_marker_pose(camera: CameraModel, vertices_px: np.ndarray, marker_po
                       tuple(cands), chosen, weight)
 
 
+@njit()
 def prior_test_weight(T_wide: np.ndarray, cov_wide: np.ndarray, up: np.ndarray,
                       tilt_sigma_rad: float, wide_sigma_rad: float, upright_probability: float
                       ) -> float:
@@ -155,45 +157,51 @@ def prior_test_weight(T_wide: np.ndarray, cov_wide: np.ndarray, up: np.ndarray,
     image sees (the nearly unconstrained estimate ``T_wide``) and its variance from the
     image alone (``cov_wide``, the reprojection's): under either model the seen tilt is
     Gaussian with the prior's variance plus the image's."""
-    n = T_wide[:3, 2]
-    tilt = float(n @ up)
+    n = np.empty(3)
+    for i in range(3):
+        n[i] = T_wide[i, 2]
+    tilt = n[0] * up[0] + n[1] * up[1] + n[2] * up[2]
     g = np.cross(n, up)  # d(n . up)/dw
-    var = max(float(g @ cov_wide[:3, :3] @ g), 0.0)
+    var = 0.0
+    for a in range(3):
+        for b in range(3):
+            var += g[a] * cov_wide[a, b] * g[b]
+    var = max(var, 0.0)
     log_odds = math.log(upright_probability / (1.0 - upright_probability))
-    for s2, sign in ((tilt_sigma_rad ** 2 + var, 1.0), (wide_sigma_rad ** 2 + var, -1.0)):
-        log_odds += sign * (-0.5 * tilt * tilt / s2 - 0.5 * math.log(s2))
+    s2 = tilt_sigma_rad ** 2 + var
+    log_odds += -0.5 * tilt * tilt / s2 - 0.5 * math.log(s2)
+    s2 = wide_sigma_rad ** 2 + var
+    log_odds -= -0.5 * tilt * tilt / s2 - 0.5 * math.log(s2)
     return 1.0 / (1.0 + math.exp(-max(min(log_odds, 50.0), -50.0)))
 
 
+@njit()
 def mix_poses(T_a: np.ndarray, cov_a: np.ndarray, T_b: np.ndarray, cov_b: np.ndarray,
               weight_a: float) -> tuple[np.ndarray, np.ndarray]:
     """The mean (rotation on the manifold, about T_a) and covariance of a two-pose mixture,
     ``weight_a`` on the first; covariances over (left rotation increment, translation)."""
+    Ra = np.ascontiguousarray(T_a[:3, :3])
     d = np.zeros(6)
-    d[:3] = _log_so3(T_b[:3, :3] @ T_a[:3, :3].T)
-    d[3:] = T_b[:3, 3] - T_a[:3, 3]
+    d[:3] = _log_so3(np.ascontiguousarray(T_b[:3, :3]) @ Ra.T)
+    for i in range(3):
+        d[3 + i] = T_b[i, 3] - T_a[i, 3]
     wb = 1.0 - weight_a
     T = np.eye(4)
-    T[:3, :3] = _exp_so3(wb * d[:3]) @ T_a[:3, :3]
-    T[:3, 3] = T_a[:3, 3] + wb * d[3:]
+    T[:3, :3] = exp_so3(wb * d[:3]) @ Ra
+    for i in range(3):
+        T[i, 3] = T_a[i, 3] + wb * d[3 + i]
     cov = weight_a * cov_a + wb * cov_b + weight_a * wb * np.outer(d, d)
     return T, cov
 
 
-def _exp_so3(w: np.ndarray) -> np.ndarray:
-    th = float(np.linalg.norm(w))
-    K = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
-    if th < 1e-12:
-        return np.eye(3) + K
-    return np.eye(3) + math.sin(th) / th * K + (1 - math.cos(th)) / (th * th) * (K @ K)
-
-
+@njit()
 def _log_so3(R: np.ndarray) -> np.ndarray:
     th = rotation_angle(R, np.eye(3))
     w = 0.5 * np.array([R[2, 1] - R[1, 2], R[0, 2] - R[2, 0], R[1, 0] - R[0, 1]])
     return w if th < 1e-9 else w * th / math.sin(th)
 
 
+@njit()
 def up_from_elevation(up_cam: np.ndarray, t_m: np.ndarray, height_m: float,
                       height_sigma_m: float = HEIGHT_SIGMA_M,
                       mount_sigma_rad: float = math.radians(MOUNT_SIGMA_DEG)
@@ -206,26 +214,31 @@ def up_from_elevation(up_cam: np.ndarray, t_m: np.ndarray, height_m: float,
     file (within ``mount_sigma_rad``) and the elevation (within ``height_sigma_m`` over the
     distance). Returns (up, the turn's 1-sigma rad); the file's up unchanged when the line
     of sight is near the vertical."""
-    up = np.asarray(up_cam, np.float64)
-    d = float(np.linalg.norm(t_m))
-    axis = np.cross(up, t_m)
-    s = float(np.linalg.norm(axis))
+    up = np.empty(3)
+    t = np.empty(3)
+    for i in range(3):
+        up[i], t[i] = up_cam[i], t_m[i]
+    d = math.sqrt(t[0] * t[0] + t[1] * t[1] + t[2] * t[2])
+    axis = np.cross(up, t)
+    s = math.sqrt(axis[0] * axis[0] + axis[1] * axis[1] + axis[2] * axis[2])
     if d <= 0 or s < 0.2 * d:
         return up, mount_sigma_rad
     axis /= s
-    slope = float(np.cross(axis, up) @ t_m) / d  # d(u . up)/d angle, u = t / d
-    angle_ml = (height_m / d - float(up @ t_m) / d) / slope
+    side = np.cross(axis, up)
+    slope = (side[0] * t[0] + side[1] * t[1] + side[2] * t[2]) / d  # d(u . up)/d angle
+    angle_ml = (height_m - (up[0] * t[0] + up[1] * t[1] + up[2] * t[2])) / d / slope
     var_ml = (height_sigma_m / d / slope) ** 2
     k = mount_sigma_rad ** 2 / (mount_sigma_rad ** 2 + var_ml)
-    return _exp_so3(k * angle_ml * axis) @ up, math.sqrt(k * var_ml)
+    return exp_so3(k * angle_ml * axis) @ up, math.sqrt(k * var_ml)
 
 
+@njit()
 def elevation_up(model: np.ndarray, q: np.ndarray, up: np.ndarray, height_m: float
-                  ) -> np.ndarray:
+                 ) -> np.ndarray:
     """``up_from_elevation`` at the marker centre IPPE sees (both candidates agree on it)."""
     status, _, ts, _, count = ippe4(model, q)
     if status != OK or count == 0:
-        return up
+        return up.copy()
     return up_from_elevation(up, ts[0], height_m)[0]
 
 
@@ -325,6 +338,7 @@ def warm_up() -> None:
                                        [0.0, 0.0, 1.0]]), dist)
         v = camera.project(model @ T[:3, :3].T + T[:3, 3])
         for up, previous in ((None, None), (np.array([0.0, -1.0, 0.0]), T[:3, :3])):
-            estimate_marker_pose(camera, v, model, up_cam=up, previous_R=previous)
+            estimate_marker_pose(camera, v, model, up_cam=up, previous_R=previous,
+                                 height_m=None if up is None else 0.05)
         estimate_marker_pose(camera, v, model, refine_steps=0)
     humanoid_floor_pose(T_floor(0.0, 0.0, 0.0), T, np.eye(4), np.eye(6))
