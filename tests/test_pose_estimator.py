@@ -613,9 +613,10 @@ def test_a_face_on_walk_with_the_mount_pitched_off_settles_the_correction():
         corrected.append(est.sequence.mount_d is not None)
     on = np.array(corrected)
     assert on.any() and on[np.argmax(on):].all()  # settles, then stays
-    assert np.argmax(on) <= 100
+    settled = int(np.argmax(on))
+    assert settled <= 60
     assert np.percentile(np.array(errors)[on], 95) < 0.006
-    assert np.percentile(np.array(errors)[:60], 50) > 0.02  # what it costs before
+    assert np.percentile(np.array(errors)[:settled], 50) > 0.02  # what it costs before
 
 
 def test_the_tested_upright_prior_gains_on_upright_views_and_costs_nothing_when_wrong():
@@ -734,7 +735,7 @@ def test_a_mount_pitched_8_degrees_off_is_corrected_once_the_check_has_settled()
     before, _, never, _ = _mount_run(8.0, False)
     assert not any(never)
     settled = correcting.index(True)
-    assert 60 <= settled <= 120 and all(correcting[settled:])  # settles and stays
+    assert 30 <= settled <= 120 and all(correcting[settled:])  # settles and stays
     late = slice(settled + 10, None)
     assert np.percentile(before[late], 95) > 0.015
     assert np.percentile(pos[late], 95) < 0.005, np.percentile(pos[late], 95)

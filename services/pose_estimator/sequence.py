@@ -202,7 +202,7 @@ class MountCheck:
     restarts from those frames.
     """
 
-    def __init__(self, up_cam: np.ndarray, min_frames: int = 60, alert_deg: float = 3.0,
+    def __init__(self, up_cam: np.ndarray, min_frames: int = 30, alert_deg: float = 3.0,
                  max_tilt_deg: float = 30.0, window_frames: int = 900,
                  settle_sigma_deg: float = 1.0, significant_sigmas: float = 4.0,
                  min_correct_deg: float = MOUNT_MIN_CORRECT_DEG,

@@ -404,7 +404,7 @@ def run(out: Path, quick: bool = False) -> int:
               "wrong vertical; each frame's upright prior takes its vertical from the "
               "marker's elevation), turning in place and walking away, without and with the "
               "mount correction (`mount_correction`: once the marker's mean lean has "
-              "settled, the estimated up replaces the file's; the first 60 or more poses are "
+              "settled, the estimated up replaces the file's; the first 30 or more poses are "
               f"before it settles). The mount check said: _{mount}_.", ""]
 
     _progress("Fig. 10: spread against area ratio")

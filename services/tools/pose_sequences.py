@@ -255,10 +255,10 @@ def experiment(camera: CameraModel, quick: bool = False
             elif correction:
                 told.append(f"{short}: never corrected")
             else:
-                told.append(f"{short} without the correction, from pose 60 on: position p95 "
-                            f"{1000 * np.percentile(sc.position_err_m[60:], 95):.1f} mm, "
+                told.append(f"{short} without the correction, from pose 30 on: position p95 "
+                            f"{1000 * np.percentile(sc.position_err_m[30:], 95):.1f} mm, "
                             f"heading p95 "
-                            f"{np.percentile(np.abs(sc.heading_err_deg[60:]), 95):.2f}°")
+                            f"{np.percentile(np.abs(sc.heading_err_deg[30:]), 95):.2f}°")
     told.append(f"the correction engaged on {engaged} of the {len(nees)} correctly mounted "
                 "sequences")
     mount = "; ".join(told) if told else "nothing (no disagreement found)"
