@@ -591,20 +591,79 @@ def test_a_mount_pitched_off_the_deployment_file_is_detected_and_told():
         assert level.mount_warning() == ""
 
 
-def test_the_heavy_tailed_upright_prior_gains_on_upright_views_and_costs_nothing_when_wrong():
-    """Unrelated views at 0.3 px against OpenCV's IPPE on the same vertices: upright markers
-    better; markers pitched to 15° and rolled to 10°, or a mount 8° off the file's, no worse
-    (a Gaussian prior would pay there)."""
-    from services.pose_estimator.evaluate import against_ippe, unrelated_views
-    upright = against_ippe(unrelated_views(1000, 5))
+def test_a_face_on_walk_with_the_mount_pitched_off_settles_the_correction():
+    """Walking straight away, face-on, the camera really pitched 8° down: the marker's lean
+    pins the pitch (its roll, unseen face-on, no longer holds the check back) and the
+    sequence corrects the up; from then the floor position is right (the lever to the feet
+    through the true vertical)."""
+    from services.core.geometry import T_base_camera
+    from services.tools.pose_sequences import walk_away
+    g = Geometry()
+    est = svc.PoseEstimator(CAM, g, svc.Settings(static_camera_pose=(0.0, 0.0, 0.0)))
+    T_real = T_base_camera(g.camera_forward_m, g.camera_height_m, math.radians(8.0))
+    rng = np.random.default_rng(3)
+    errors, corrected = [], []
+    for k, (x, y, yaw, _) in enumerate(walk_away(30.0, 0, 4.0, 0.2, 0.6).truth):
+        T = inv_T(T_real) @ T_floor(x, y, yaw) @ g.T_humanoid_marker()
+        v = CAM.project(PTS @ T[:3, :3].T + T[:3, 3]) + rng.normal(0, 0.05, (4, 2))
+        pose = est.estimate(MarkerVertices(seq=k, stamp_ns=10**12 + k * 33_000_000, found=True,
+                                           vertices_px=tuple(map(tuple, v))))  # type: ignore[arg-type]
+        assert pose.x is not None and pose.y is not None
+        errors.append(math.hypot(pose.x - x, pose.y - y))
+        corrected.append(est.sequence.mount_d is not None)
+    on = np.array(corrected)
+    assert on.any() and on[np.argmax(on):].all()  # settles, then stays
+    settled = int(np.argmax(on))
+    assert settled <= 60
+    assert np.percentile(np.array(errors)[on], 95) < 0.006
+    assert np.percentile(np.array(errors)[:settled], 50) > 0.02  # what it costs before
+
+
+def test_the_tested_upright_prior_gains_on_upright_views_and_costs_nothing_when_wrong():
+    """Unrelated views at 0.3 px against OpenCV's IPPE on the same vertices (two seeds
+    pooled: one seed's p90 moves by ±3 %): upright markers better; markers pitched to 15°
+    and rolled to 10° no worse (a Gaussian prior would pay there); a mount 8° off the
+    file's better too (the marker's elevation gives the prior the real vertical)."""
+    from services.pose_estimator.evaluate import ippe_errors, ippe_ratios, unrelated_views
+
+    def pooled(lean_deg: float = 3.0, roll_deg: float = 0.0, mount_off_deg: float = 0.0
+               ) -> list:
+        return [c for seed in (5, 6) for c in unrelated_views(
+            700, seed, lean_deg=lean_deg, roll_deg=roll_deg, mount_off_deg=mount_off_deg)]
+
+    upright = ippe_ratios(*ippe_errors(pooled()))
     assert upright[0] <= 0.95 and upright[1] <= 1.0, upright
-    tilted_views = unrelated_views(1000, 5, lean_deg=15.0, roll_deg=10.0)
-    tilted = against_ippe(tilted_views)
-    gaussian = against_ippe(tilted_views, tilt_huber_sigmas=0.0)
-    assert tilted[0] <= 1.05 and tilted[1] <= 1.01, tilted
-    assert gaussian[1] > tilted[1] + 0.05  # what the heavy tails save
-    mount = against_ippe(unrelated_views(1000, 5, lean_deg=2.0, mount_off_deg=8.0))
-    assert mount[0] <= 1.05 and mount[1] <= 1.01, mount
+    tilted_views = pooled(lean_deg=15.0, roll_deg=10.0)
+    tilted = ippe_ratios(*ippe_errors(tilted_views))
+    gaussian = ippe_ratios(*ippe_errors(tilted_views, tilt_huber_sigmas=0.0,
+                                        upright_probability=1.0))
+    assert tilted[0] <= 1.05 and tilted[1] <= 1.02, tilted
+    assert gaussian[1] > tilted[1] + 0.05  # what the test and the heavy tails save
+    mount_views = pooled(lean_deg=2.0, mount_off_deg=8.0)
+    mount = ippe_ratios(*ippe_errors(mount_views))
+    assert mount[0] <= 0.98 and mount[1] <= 1.0, mount
+    file_up = ippe_ratios(*ippe_errors(mount_views, height_m=None))  # type: ignore[arg-type]
+    assert file_up[0] > mount[0] + 0.02  # what the elevation saves
+
+
+def test_the_marker_elevation_finds_a_mount_pitched_off_the_file():
+    """A camera really pitched 8° down (the file says level) sees the marker at its own
+    height 8° above the optical axis: the elevation's up takes most of the offset (the
+    blend with the file keeps 8 % of it at 20 cm, 1 % at 60 cm); a level mount's is left
+    where it is."""
+    from services.core.geometry import T_base_camera
+    from services.pose_estimator.estimate import up_from_elevation
+    g = Geometry()
+    up_file = up_in_camera(g.T_base_camera())
+    for pitch_deg in (8.0, -8.0, 0.0):
+        T_real = T_base_camera(g.camera_forward_m, g.camera_height_m, math.radians(pitch_deg))
+        up_true = up_in_camera(T_real)
+        for distance in (0.2, 0.6):
+            T = inv_T(T_real) @ T_floor(distance, 0.02, 0.3) @ g.T_humanoid_marker()
+            up, sigma = up_from_elevation(up_file, T[:3, 3], 0.0)
+            err = math.degrees(math.acos(min(1.0, float(up @ up_true))))
+            assert err < 0.15 * abs(pitch_deg) + 0.1, (pitch_deg, distance, err)
+            assert sigma < math.radians(2.0)
 
 
 def test_a_turn_across_the_line_of_sight_far_away_never_leaves_a_confident_mirror():
@@ -676,7 +735,7 @@ def test_a_mount_pitched_8_degrees_off_is_corrected_once_the_check_has_settled()
     before, _, never, _ = _mount_run(8.0, False)
     assert not any(never)
     settled = correcting.index(True)
-    assert 60 <= settled <= 120 and all(correcting[settled:])  # settles and stays
+    assert 30 <= settled <= 120 and all(correcting[settled:])  # settles and stays
     late = slice(settled + 10, None)
     assert np.percentile(before[late], 95) > 0.015
     assert np.percentile(pos[late], 95) < 0.005, np.percentile(pos[late], 95)

@@ -141,15 +141,25 @@ def unrelated_views(n: int, seed: int = 0, *, lean_deg: float = 3.0, roll_deg: f
 
 
 def ippe_errors(cases: list[PoseCase], camera: CameraModel | None = None,
-                **estimator: float) -> tuple[np.ndarray, np.ndarray]:
-    """Position errors (m) of our estimator (the service's vertex sigma, the views' up
-    vector, ``estimator`` keyword arguments) and of OpenCV's IPPE on the same vertices."""
+                noise_known: bool = True, **estimator: float
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """Position errors (m) of our estimator and of OpenCV's IPPE on the same vertices.
+
+    Ours as the service runs it on a single frame: the views' up vector (the mount's), the
+    marker centre's height over the camera (the mounts': the elevation's up), the vertex
+    sigma the extractor's covariance would carry (each view's noise) when ``noise_known``,
+    else the fixed setting (``VERTEX_SIGMA_PX``); ``estimator`` keyword arguments on top.
+    OpenCV gets the same pixels and intrinsics, no priors."""
     camera = camera or CameraModel.paper()
-    pts = Geometry().marker_points()
+    g = Geometry()
+    pts = g.marker_points()
+    kw: dict[str, object] = {"height_m": g.marker_centre_height_m - g.camera_height_m}
+    kw.update(estimator)
     cv = opencv_solver(cv2.SOLVEPNP_IPPE, camera)
     ours = np.array([_errors(estimate_marker_pose(
-        camera, c.vertices_px, pts, up_cam=c.up_cam, sigma_px=VERTEX_SIGMA_PX,
-        **estimator).T_camera_marker, c.T_camera_marker)[0] for c in cases])  # type: ignore[arg-type]
+        camera, c.vertices_px, pts, up_cam=c.up_cam,
+        sigma_px=c.noise_px if noise_known else VERTEX_SIGMA_PX,
+        **kw).T_camera_marker, c.T_camera_marker)[0] for c in cases])  # type: ignore[arg-type]
     ref = np.array([_errors(cv(c), c.T_camera_marker)[0] for c in cases])
     return ours, ref
 
@@ -161,10 +171,10 @@ def ippe_ratios(ours: np.ndarray, ref: np.ndarray) -> tuple[float, float]:
 
 
 def against_ippe(cases: list[PoseCase], camera: CameraModel | None = None,
-                 **estimator: float) -> tuple[float, float]:
+                 noise_known: bool = True, **estimator: float) -> tuple[float, float]:
     """Position error of our estimator over OpenCV's IPPE on the same vertices (see
     ``ippe_errors``): (median ratio, p90 ratio)."""
-    return ippe_ratios(*ippe_errors(cases, camera, **estimator))
+    return ippe_ratios(*ippe_errors(cases, camera, noise_known, **estimator))
 
 
 def compare(cases: list[PoseCase], camera: CameraModel | None = None
@@ -212,9 +222,9 @@ def _tilt(T: np.ndarray, up_cam: np.ndarray) -> float:
 
 def wrong_branches(cases: list[PoseCase], camera: CameraModel | None = None,
                    tilt_sigma_rad: float = math.radians(TILT_SIGMA_DEG), margin: float = 4.0,
-                   prior: bool = True) -> BranchReport:
-    """Branch choices of the estimator (upright prior on unless ``prior`` is False; no
-    continuity prior).
+                   prior: bool = True, upright_probability: float = 1.0) -> BranchReport:
+    """Branch choices of the estimator (upright prior on unless ``prior`` is False, tested per
+    view when ``upright_probability`` is below 1; no continuity prior).
 
     The mirror is the other IPPE pose of the noise-free view; a view counts when it is more
     than 10 deg from the truth. The final pose is wrong when nearer the mirror than the
@@ -234,7 +244,8 @@ def wrong_branches(cases: list[PoseCase], camera: CameraModel | None = None,
             continue
         mp = estimate_marker_pose(camera, c.vertices_px, pts,
                                   up_cam=c.up_cam if prior else None, sigma_px=c.noise_px,
-                                  tilt_sigma_rad=tilt_sigma_rad)
+                                  tilt_sigma_rad=tilt_sigma_rad,
+                                  upright_probability=upright_probability)
         T = mp.T_camera_marker
         is_wrong = _errors(T, T_true)[1] > _errors(T, mirror)[1]
         can = _tilt(mirror, c.up_cam) - _tilt(T_true, c.up_cam) > margin * tilt_sigma_rad

@@ -43,8 +43,10 @@ from services.pose_estimator.branches import BranchTracker, candidate_cost, rota
 from services.pose_estimator.estimate import (
     TILT_HUBER_SIGMAS,
     TILT_SIGMA_DEG,
+    UPRIGHT_PROBABILITY,
     VERTEX_SIGMA_PX,
     MarkerPose,
+    elevation_up,
     estimate_marker_pose,
 )
 from services.pose_estimator.p4p import PoseError, huber_weight, residuals_and_jacobian
@@ -79,6 +81,11 @@ class SequenceParams:
         mount_correction: once the mount check has settled on a significant offset, the
             upright prior and the world composition use the estimated up instead of the
             deployment file's.
+        height_m: the marker centre's height over the camera's optical centre (from the
+            mounts): each frame's upright prior uses the up its elevation implies
+            (``estimate.up_from_elevation``); None: the mount's up as it is.
+        upright_probability: the per-frame test of the upright prior (see
+            ``estimate.estimate_marker_pose``); 1: the prior always holds.
     """
 
     continuity_window_s: float = CONTINUITY_WINDOW_S
@@ -90,6 +97,8 @@ class SequenceParams:
     scale_sigma_px: float = SCALE_SIGMA_PX
     merge_sigmas: float = 2.0
     mount_correction: bool = MOUNT_CORRECTION
+    height_m: float | None = None
+    upright_probability: float = UPRIGHT_PROBABILITY
 
 
 @dataclass(frozen=True)
@@ -159,6 +168,17 @@ def heading_about(up: np.ndarray, Ra: np.ndarray, Rb: np.ndarray) -> float:
     return math.atan2(float(np.cross(a, b) @ up), float(a @ b))
 
 
+def _size_sigma(d: np.ndarray, cov: np.ndarray) -> tuple[float, float]:
+    """The size of the offset ``d`` (rad) and its 1-sigma: along ``d`` (a direction the
+    views hardly see, such as the roll of a face-on marker, is held near zero by the ridge
+    and neither delays nor makes a correction); the whole trace when ``d`` is zero."""
+    size = float(np.linalg.norm(d))
+    if size < 1e-9:
+        return size, math.sqrt(max(float(np.trace(cov)), 0.0))
+    u = d / size
+    return size, math.sqrt(max(float(u @ cov @ u), 0.0))
+
+
 class MountCheck:
     """Is the world's up where the deployment file's mount puts it? Over a sequence.
 
@@ -173,7 +193,8 @@ class MountCheck:
 
     The estimate's uncertainty is the residual spread over the information, inflated for
     frames that are not independent (``correlated_frames`` in a row say little more than
-    one). Once settled (``min_frames``, sigma under ``settle_sigma_deg``, the offset beyond
+    one). Once settled (``min_frames``, the sigma along the offset under ``settle_sigma_deg``,
+    the offset beyond
     ``significant_sigmas`` sigmas and ``min_correct_deg``) ``correction()`` returns ``d``;
     a correct mount stays below that and is never corrected. When the last
     ``jump_frames`` frames disagree with the settled estimate by more than ``jump_deg``
@@ -181,7 +202,7 @@ class MountCheck:
     restarts from those frames.
     """
 
-    def __init__(self, up_cam: np.ndarray, min_frames: int = 60, alert_deg: float = 3.0,
+    def __init__(self, up_cam: np.ndarray, min_frames: int = 30, alert_deg: float = 3.0,
                  max_tilt_deg: float = 30.0, window_frames: int = 900,
                  settle_sigma_deg: float = 1.0, significant_sigmas: float = 4.0,
                  min_correct_deg: float = MOUNT_MIN_CORRECT_DEG,
@@ -262,7 +283,7 @@ class MountCheck:
     def sigma_deg(self) -> float | None:
         """1-sigma of the offset's size (deg), or None before ``min_frames``."""
         s = self.solved()
-        return None if s is None else math.degrees(math.sqrt(max(float(np.trace(s[1])), 0.0)))
+        return None if s is None else math.degrees(_size_sigma(*s)[1])
 
     def correction(self) -> np.ndarray | None:
         """``d`` (rad, camera frame; the true up is ``exp(d) up_file``) once settled and
@@ -271,7 +292,7 @@ class MountCheck:
         if s is None:
             return None
         d, cov = s
-        size, sigma = float(np.linalg.norm(d)), math.sqrt(max(float(np.trace(cov)), 0.0))
+        size, sigma = _size_sigma(d, cov)
         if sigma > self.settle_sigma or size < max(self.significant_sigmas * sigma,
                                                    self.min_correct):
             return None
@@ -338,20 +359,25 @@ class MarkerSequence:
         # smaller (its covariance leaves out errors common to the vertices, such as the
         # scale, and a smaller weight would weaken the priors against them)
         sigma_px = max(vertex_sigma(vertices_cov_px2, p.vertex_sigma_px), p.vertex_sigma_px)
+        up = self.up_cam
+        if up is not None and p.height_m is not None and p.refine:
+            up = elevation_up(np.ascontiguousarray(self.points, np.float64),
+                              undistort_px(self.camera, v), up, p.height_m)
 
         def solve(previous_R: np.ndarray | None, sigma_deg: float = 10.0) -> MarkerPose:
             return estimate_marker_pose(
-                self.camera, v, self.points, up_cam=self.up_cam,
+                self.camera, v, self.points, up_cam=up,
                 refine_steps=5 if p.refine else 0, sigma_px=sigma_px,
                 tilt_sigma_rad=p.tilt_sigma_rad, previous_R=previous_R,
-                continuity_sigma_rad=math.radians(sigma_deg))
+                continuity_sigma_rad=math.radians(sigma_deg),
+                upright_probability=p.upright_probability)
         mp = solve(self.previous[1] if recent and self.previous else None)
         last = self.branches.position
         if recent and last is not None and float(np.linalg.norm(
                 mp.T_camera_marker[:3, 3] - last)) > self.branches.max_move_m:
             mp = solve(None)  # the marker jumped: an unrelated view owes nothing to the last
         follow, ambiguous = self.branches.update([
-            (c[:3, :3], candidate_cost(self.camera, c, self.points, v, sigma_px, self.up_cam,
+            (c[:3, :3], candidate_cost(self.camera, c, self.points, v, sigma_px, up,
                                        p.tilt_sigma_rad))
             for c in mp.candidates], mp.T_camera_marker[:3, 3])
         if follow is not None and rotation_angle(follow, mp.T_camera_marker[:3, :3]) > \
@@ -361,7 +387,7 @@ class MarkerSequence:
         if self.mount is not None:
             self.mount.add(min(mp.candidates, key=lambda c: rotation_angle(
                 c[:3, :3], T[:3, :3]))[:3, :3], float(np.linalg.norm(T[:3, 3])))
-        cov = self._covariance(T, v, sigma_px, vertices_cov_px2)
+        cov = self._covariance(T, v, sigma_px, vertices_cov_px2, up, mp.upright_weight)
         if self.mount_cov is not None:
             # the corrected mount's own uncertainty: a mount turned by e (camera frame) turns
             # the marker's pose about the camera, (w, t) by (e, e x t)
@@ -396,14 +422,17 @@ class MarkerSequence:
         return SequenceEstimate(T, cov, mp.reprojection_px, bool(reason), reason)
 
     def _covariance(self, T: np.ndarray, v: np.ndarray, weight_px: float,
-                    vertices_cov_px2: object | None) -> np.ndarray:
+                    vertices_cov_px2: object | None, up: np.ndarray | None = None,
+                    upright_weight: float = 1.0) -> np.ndarray:
         """6 x 6 covariance of the estimate (a weighted least squares with weight
         ``weight_px`` plus the upright prior) under the vertex noise model: ``noise_sigma_px``
         on each coordinate plus what the extractor's per-vertex covariances report beyond a
         clean frame's level (``EXTRACTOR_CLEAN_SIGMA_PX``), plus a common scale error of
         ``scale_sigma_px`` (the rhombus seen a little larger or smaller, as
         blur, gamma and JPEG make it), plus the gait's rock about the marker normal. The
-        sandwich A^-1 B A^-1 of the Gauss-Newton normal equations."""
+        sandwich A^-1 B A^-1 of the Gauss-Newton normal equations; the upright prior about
+        ``up`` (the sequence's when None), its information scaled by the frame's prior-test
+        weight ``upright_weight``."""
         p = self.params
         f = 0.5 * (self.camera.K[0, 0] + self.camera.K[1, 1])
         q = undistort_px(self.camera, v)
@@ -425,11 +454,12 @@ class MarkerSequence:
         S += p.scale_sigma_px ** 2 * np.outer(d, d)
         A = J.T @ J / weight_px ** 2
         B = J.T @ S @ J / weight_px ** 4
-        if self.up_cam is not None:
+        up = self.up_cam if up is None else up
+        if up is not None:
             g = np.zeros(6)
-            g[:3] = np.cross(R[:, 2], self.up_cam) / p.tilt_sigma_rad  # d(n . up)/dw
-            g *= math.sqrt(huber_weight(float(R[:, 2] @ self.up_cam),
-                                        math.sin(TILT_HUBER_SIGMAS * p.tilt_sigma_rad)))
+            g[:3] = np.cross(R[:, 2], up) / p.tilt_sigma_rad  # d(n . up)/dw
+            g *= math.sqrt(upright_weight * huber_weight(
+                float(R[:, 2] @ up), math.sin(TILT_HUBER_SIGMAS * p.tilt_sigma_rad)))
             A += np.outer(g, g)
             B += np.outer(g, g)
         try:

@@ -21,7 +21,9 @@ from schemas.keys import HUMANOID_POSE, HUMANOID_POSE_FILTERED, INTRINSICS, ODOM
 from services.core.camera import CameraModel
 from services.core.geometry import T_floor, inv_T, make_T, quaternion_from_R
 from services.pose_estimator.estimate import (
+    ELEVATION_UP,
     TILT_SIGMA_DEG,
+    UPRIGHT_PROBABILITY,
     VERTEX_SIGMA_PX,
     humanoid_floor_pose,
     up_in_camera,
@@ -57,6 +59,14 @@ class Settings(ServiceSettings):
                                    description="vertex noise, 1-sigma px")
     tilt_sigma_deg: float = Field(default=TILT_SIGMA_DEG, gt=0.0, le=45.0,
                                   description="upright prior: marker normal level within (deg)")
+    upright_probability: float = Field(default=UPRIGHT_PROBABILITY, gt=0.0, le=1.0, description=(
+        "each frame tests the upright prior: the pose weighs the upright and a leaning "
+        "model by their posterior probabilities, starting from this one for upright (1: the "
+        "prior always holds)"))
+    elevation_up: bool = Field(default=ELEVATION_UP, description=(
+        "each frame's upright prior takes the vertical from where the marker is seen (its "
+        "centre's height over the camera, from the mounts), blended with the mount's: a "
+        "camera pitched a few degrees off the deployment file's costs the prior little"))
     noise_sigma_px: float = Field(default=NOISE_SIGMA_PX, gt=0.0, description=(
         "the covariance's vertex noise (1-sigma px per coordinate) when the extractor sends "
         "no per-vertex covariance"))
@@ -95,7 +105,10 @@ class PoseEstimator:
             tilt_sigma_rad=math.radians(config.tilt_sigma_deg), refine=config.refine,
             rock_sigma_rad=math.radians(config.rock_sigma_deg),
             noise_sigma_px=config.noise_sigma_px, scale_sigma_px=config.scale_sigma_px,
-            mount_correction=config.mount_correction))
+            mount_correction=config.mount_correction,
+            height_m=geometry.marker_centre_height_m - geometry.camera_height_m
+            if config.elevation_up else None,
+            upright_probability=config.upright_probability))
 
     def estimate(self, msg: MarkerVertices) -> HumanoidPose:
         """Raises PoseError when the vertices give no pose (or one no message can carry)."""

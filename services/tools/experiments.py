@@ -399,11 +399,12 @@ def run(out: Path, quick: bool = False) -> int:
               "not marked ambiguous with its heading sigma covering the error. Goal: walking away "
               "heading median <= 0.5°, p95 <= 2°, position p95 <= 6 mm; none not covered; "
               "NEES 2-4.5.", "",
-              "The last two rows: the camera's real mount pitched 8° down while the "
-              "deployment file says level (the upright prior is then 8° wrong and the "
-              "marker-to-feet lever goes through the wrong vertical), without and with the "
+              "The last four rows: the camera's real mount pitched 8° down while the "
+              "deployment file says level (the marker-to-feet lever then goes through the "
+              "wrong vertical; each frame's upright prior takes its vertical from the "
+              "marker's elevation), turning in place and walking away, without and with the "
               "mount correction (`mount_correction`: once the marker's mean lean has "
-              "settled, the estimated up replaces the file's; the first ~60 frames are "
+              "settled, the estimated up replaces the file's; the first 30 or more poses are "
               f"before it settles). The mount check said: _{mount}_.", ""]
 
     _progress("Fig. 10: spread against area ratio")
