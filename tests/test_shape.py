@@ -213,7 +213,7 @@ def test_the_service_asks_camera_intrinsics_at_its_start(router, make_bus, tmp_p
             for seq in range(1, 30):
                 header, payload = encode_frame(_frame(_card(*CARDS[1])), seq, 10**18 + seq)
                 bus.put_frame(header, payload)
-                msg = await out.recv(timeout=30)
+                msg = await out.recv(timeout=120)  # the first waits for warm-up
                 if "best pose" in msg.reason:
                     break
                 await asyncio.sleep(0.2)

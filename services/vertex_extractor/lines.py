@@ -158,14 +158,20 @@ def fit_rhombus(u: np.ndarray, d: np.ndarray, min_points: int, drop: int
     return FIT_OK, v, math.sqrt(sq / count)
 
 
+#: how much more than the quadrilateral the blob may cover, in units of sqrt(area) px²: a
+#: band about a quarter of this wide (px) round the outline (a small marker's blurred fringe
+#: passes the colour test: 4.5-9 on 25-40 px markers through the webcam)
+BLOB_FRINGE = 10.0
+
+
 @njit()
 def check_rhombus(v: np.ndarray, residual: float, blob_area: float, width: int, height: int,
                   min_angle_deg: float, max_residual: float
                   ) -> tuple[int, float, float, float]:
     """Is the quadrilateral v (left, top, right, bottom) px the marker? Returns (verdict,
     area px², smallest and largest corner angle deg); the blob's area may exceed the
-    quadrilateral's by 15% + 2 sqrt(area), and fall short of it by 30% + 2 sqrt(area) (part of
-    the marker hidden, its vertex given by the visible lines)."""
+    quadrilateral's by 15% + BLOB_FRINGE sqrt(area) (a blurred fringe), and fall short of it by
+    30% + 2 sqrt(area) (part of the marker hidden, its vertex given by the visible lines)."""
     for i in range(4):
         if not (math.isfinite(v[i, 0]) and math.isfinite(v[i, 1])):
             return NOT_FINITE, 0.0, 0.0, 0.0
@@ -194,7 +200,7 @@ def check_rhombus(v: np.ndarray, residual: float, blob_area: float, width: int, 
         return BAD_ANGLES, area, amin, amax
     if residual > max_residual:
         return NOT_STRAIGHT, area, amin, amax
-    if blob_area - area > 0.15 * area + 2.0 * math.sqrt(area) or \
+    if blob_area - area > 0.15 * area + BLOB_FRINGE * math.sqrt(area) or \
             area - blob_area > 0.3 * area + 2.0 * math.sqrt(area):
         return AREA_MISMATCH, area, amin, amax
     return PLAUSIBLE, area, amin, amax
