@@ -255,3 +255,16 @@ def test_a_dim_marker_is_measured_while_its_edges_stand_out_of_the_noise():
     errors, wrong, total, dets = _run("low light (exposure x0.12)", 20)
     assert wrong == 0 and len(errors) >= 0.95 * total, (wrong, len(errors), total)
     _within_reported(dets)
+
+
+def test_a_small_markers_blurred_fringe_does_not_refuse_it_but_a_bigger_blob_does():
+    from services.vertex_extractor import lines
+    v = np.array([[10.0, 30.0], [22.0, 12.0], [34.0, 30.0], [22.0, 48.0]])  # 24 x 36 px
+    area = 0.5 * 24 * 36
+
+    def verdict(blob: float) -> int:
+        return lines.check_rhombus(v, 0.1, blob, 640, 480, 20.0, 1.0)[0]
+    # through the webcam a 25-40 px marker's blob exceeds its quadrilateral by 4.5-9 sqrt(area)
+    assert verdict(area + 9.0 * np.sqrt(area)) == lines.PLAUSIBLE
+    assert verdict(1.15 * area + 12.0 * np.sqrt(area)) == lines.AREA_MISMATCH
+    assert verdict(0.6 * area) == lines.AREA_MISMATCH  # most of the blob missing
