@@ -95,3 +95,23 @@ def test_a_real_link_cut_and_flapped_while_the_humanoid_walks(tmp_path: Path, wa
     assert report.completed, (tmp_path / "laptop.log").read_text()[-3000:]
     assert report.restarts == 0
     assert not report.moved_late_m, report.moved_late_m
+
+
+def test_a_stop_is_timed_from_when_the_cut_took_effect_not_from_its_command():
+    """`iptables` in a namespace can take 0.4 s on a loaded machine: commands that still came
+    through after the cut command started show the cut was not yet made; the stop is timed
+    from the last of them (and never from before the command)."""
+    robot: list[dict[str, object]] = [
+        {"k": "ir", "t": 9.5, "cmd": "walk_forward", "sent": 9.49},
+        {"k": "cmd", "t": 9.8, "cmd": "walk_forward", "sent": 9.8},
+        {"k": "cmd", "t": 10.2, "cmd": "walk_forward", "sent": 10.2},   # came through
+        {"k": "cmd", "t": 10.4, "cmd": "walk_forward", "sent": 10.4},   # came through
+        {"k": "ir", "t": 10.92, "cmd": "stop", "sent": None},            # the dead-man
+    ]
+    laptop = [{"k": "cmd", "t": t, "cmd": "walk_forward", "sent": t} for t in (9.8, 10.2, 10.4)]
+    late = partition.Report("drop", cuts=[(10.0, 11.0)])
+    partition._measure(late, robot, laptop, fps=30.0)
+    assert late.cut_late_s == [0.4] and late.stop_after_cut_s == [0.52]
+    prompt = partition.Report("drop", cuts=[(10.3, 11.0)])
+    partition._measure(prompt, robot[:3] + robot[4:], laptop, fps=30.0)
+    assert prompt.cut_late_s == [0.0] and prompt.stop_after_cut_s == [0.62]

@@ -170,7 +170,8 @@ async def probe(connect: str, out: Path) -> None:
 class Report:
     way: str
     cuts: list[tuple[float, float]] = field(default_factory=list)  # (cut, heal), monotonic s
-    stop_after_cut_s: list[float] = field(default_factory=list)
+    stop_after_cut_s: list[float] = field(default_factory=list)  # from the cut in effect
+    cut_late_s: list[float] = field(default_factory=list)  # cut command start -> in effect
     token_gone_after_cut_s: list[float] = field(default_factory=list)
     stale_motion: list[float] = field(default_factory=list)  # ages (s) of late motion cmds
     motion_sent: int = 0
@@ -362,7 +363,14 @@ def _measure(report: Report, robot: list[dict[str, object]], laptop: list[dict[s
             report.stale_motion.append(round(age, 3))
     decided = [(float(r["sent"]), str(r["cmd"])) for r in laptop  # type: ignore[arg-type]
                if r.get("k") == "cmd"]
-    for t_cut, t_heal in report.cuts:
+    arrived = [float(r["t"]) for r in robot if r.get("k") == "cmd"]  # type: ignore[arg-type]
+    for t_cmd, t_heal in report.cuts:
+        # the cut is in effect from the later of its command's start and the last controller
+        # command that still came through (`ip netns exec iptables` can take 0.4 s on a
+        # loaded machine: the humanoid cannot be asked to stop for a cut not yet made)
+        first_stop = min((t for t, c, _ in ir if t > t_cmd and c == "stop"), default=t_heal)
+        t_cut = max([t_cmd, *(t for t in arrived if t_cmd < t < min(first_stop, t_heal))])
+        report.cut_late_s.append(round(t_cut - t_cmd, 3))
         before = [c for t, c, _ in ir if t <= t_cut]
         # the controller's last motion command before the cut (on its own host)
         last_motion = max((t for t, c in decided if t <= t_cut and c != "stop"), default=None)
@@ -405,16 +413,17 @@ def summary(reports: list[Report]) -> str:
     """A markdown table of the runs."""
     def span(v: list[float]) -> str:
         return f"{min(v):.2f}-{max(v):.2f}" if v else "-"
-    lines = ["| way | cuts | stop after cut (s) | token gone after cut (s) | motion cmds "
-             "(> 0.5 s old) | oldest motion (s) | coast (cm) | moving after the last motion "
-             "command (s) | fresh pose after heal (s) | done after last heal (s) | "
+    lines = ["| way | cuts | cut in effect after (s) | stop after cut (s) | "
+             "token gone after cut (s) | motion cmds (> 0.5 s old) | oldest motion (s) | "
+             "coast (cm) | moving after the last motion command (s) | "
+             "fresh pose after heal (s) | done after last heal (s) | "
              "final error (cm) | restarts | memory | sim speed | holds |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in reports:
         mem = ", ".join(f"{k} {100 * g:+.0f}%" for k, g in r.memory_growth.items())
         done = f"{r.done_after_last_heal_s:.0f}" if r.done_after_last_heal_s else "not done"
         lines.append(
-            f"| {r.way} | {len(r.cuts)} | {span(r.stop_after_cut_s)} | "
+            f"| {r.way} | {len(r.cuts)} | {span(r.cut_late_s)} | {span(r.stop_after_cut_s)} | "
             f"{span(r.token_gone_after_cut_s)} | {r.motion_sent} ({len(r.stale_motion)}) | "
             f"{r.oldest_motion_s:.2f} | {span([100 * c for c in r.coast_m])} | "
             f"{span(r.still_after_last_motion_s)} | "
