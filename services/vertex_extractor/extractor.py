@@ -36,8 +36,10 @@ Where we depart from the paper, keeping its spirit:
   horizontal axis (a level camera at about the marker's height), so that a card, a square or
   a wide rhombus in the same ink is refused. With the camera's intrinsics
   (``use_intrinsics``) the best planar pose of the rhombus must also reproject the vertices
-  and view it as the deployment can (``shape.py``). Anything else is ``found = False`` with
-  a reason.
+  and view it as the deployment can (``shape.py``). Each edge must be a clean step: a
+  shadow's boundary running along an edge just inside the marker moves the whole edge by a
+  steady 1-3 px, which the median profile across it shows (``profile.py``). Anything else is
+  ``found = False`` with a reason.
 - Each detection carries its per-vertex covariance (px²): the line fits' offset and angle
   variances propagated through the intersections, scaled for the points' correlation
   (``COV_SCALE``); one whose largest sigma exceeds ``max_vertex_sigma_px`` is refused.
@@ -66,7 +68,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.core.camera import CameraModel
 from services.core.mounts import Geometry
-from services.vertex_extractor import lines, measure, paper, scan, shape
+from services.vertex_extractor import lines, measure, paper, profile, scan, shape
 from services.vertex_extractor.colour import ColourModel, grid_mask
 from services.vertex_extractor.shape import ShapeParams, ShapeTest
 
@@ -111,6 +113,14 @@ class ExtractorParams(BaseModel):
     max_vertex_sigma_px: float = Field(
         default=1.2, gt=0, description="a detection whose vertex uncertainty (1 sigma, "
                                        "largest axis) exceeds this is refused")
+    max_step_offset_px: float = Field(
+        default=0.5, gt=0, description="an edge whose median profile crosses half way "
+        "further than this inside its fitted line (1.6 times this beyond it), and further "
+        "than max_step_spread_px from the four edges' median, is not a clean step (a "
+        "shadow's boundary along it): the detection is refused (profile.py)")
+    max_step_spread_px: float = Field(
+        default=0.3, ge=0, description="see max_step_offset_px (a blurred marker's edges lie "
+        "off their steps alike)")
     max_outside_share: float = Field(
         default=0.2, gt=0, le=1, description="share of one edge's points allowed outside the "
                                              "quadrilateral (beyond its line's noise band)")
@@ -125,6 +135,8 @@ class ExtractorParams(BaseModel):
         "rhombus must reproject the vertices and view it as the deployment can"))
 
 
+#: the quadrilateral's edges, from vertex k (left, top, right, bottom) to the next
+_EDGE_NAMES = ("upper left", "upper right", "lower right", "lower left")
 _EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING,
           "orthogonal": scan.ORTHOGONAL}
 
@@ -295,6 +307,15 @@ class RhombusExtractor:
         if test is not None and (reason := test.refusal(v, cov)):
             self._seed = None
             return _miss(reason, tracked)
+        offsets = profile.step_offsets(image, v, lut)
+        k = profile.odd_edge(offsets, p.max_step_offset_px, p.max_step_spread_px)
+        if k >= 0:
+            self._seed = None
+            return _miss(
+                f"the {_EDGE_NAMES[k]}"
+                " edge is not a clean step: its profile crosses half way "
+                f"{offsets[k]:+.1f}"
+                " px from the fitted line (a shadow's boundary along it?)", tracked)
         self._seed = (int(stats[measure.SEED_X]), int(stats[measure.SEED_Y]),
                       int(stats[measure.SEED_RADIUS]))
         return Detection(True, v, float(stats[measure.AREA_RATIO]),
@@ -441,3 +462,4 @@ def warm_up(params: ExtractorParams | None = None) -> None:
         extractor.extract(frame)  # cold
         extractor.extract(frame)  # tracked
     shape.warm_up()
+    profile.warm_up()
