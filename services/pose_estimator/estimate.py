@@ -19,8 +19,10 @@ from services.pose_estimator.p4p import (
     PoseError,
     covariance_6,
     exp_so3,
+    huber_weight,
     ippe4,
     map_pose,
+    prior_cost,
     raise_for,
     rotation_angle,
 )
@@ -342,3 +344,6 @@ def warm_up() -> None:
                                  height_m=None if up is None else 0.05)
         estimate_marker_pose(camera, v, model, refine_steps=0)
     humanoid_floor_pose(T_floor(0.0, 0.0, 0.0), T, np.eye(4), np.eye(6))
+    # the prior's two scalar kernels are also called from Python (branches, sequence)
+    prior_cost(0.1, 1.0, 1.0)
+    huber_weight(0.1, 1.0)
