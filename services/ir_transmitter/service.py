@@ -18,7 +18,9 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from typing import Any, Literal
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from typing import Any, Literal, TypeVar
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -28,6 +30,8 @@ from services.ir_transmitter.backends import BackendError, IrBackend, make_backe
 from services.ir_transmitter.freshness import OLD, FreshnessGate, FreshnessParams, Verdict
 from services.runtime.config import ServiceSettings
 from services.runtime.context import ServiceContext
+
+T = TypeVar("T")
 
 BackendName = Literal["serial", "lirc", "sim", "log"]
 
@@ -67,12 +71,23 @@ class Transmitter:
 
     def __init__(self, backend: IrBackend, config: Settings) -> None:
         self.backend, self.config = backend, config
+        # the backend's own thread: a stop never waits behind other services' blocking calls
+        # (queries of up to 2 s) in the loop's shared executor
+        self._io = ThreadPoolExecutor(max_workers=1, thread_name_prefix="ir-backend")
         self.sent = self.failed = self.coalesced = self.deadman_stops = 0
         self.gate = FreshnessGate(config.part(FreshnessParams))
         self.superseded = 0   # passed the gate, but a newer one came with it
         self.last_error = ""
         self._last: tuple[Command, float] | None = None
         self.pending: IrCommand | None = None  # latest command that failed to go out
+
+    async def call(self, fn: Callable[..., T], *args: Any) -> T:
+        """``fn(*args)`` on the backend's own thread."""
+        return await asyncio.get_running_loop().run_in_executor(self._io, fn, *args)
+
+    def close(self) -> None:
+        """Let the backend's thread go (after the last send)."""
+        self._io.shutdown(wait=False)
 
     def status(self) -> IrBackendStatus:
         return IrBackendStatus(backend=self.backend.name, options=self.backend.options,
@@ -94,7 +109,7 @@ class Transmitter:
             if wait > 0:
                 await asyncio.sleep(wait)
         try:
-            await asyncio.to_thread(self.backend.send, cmd)
+            await self.call(self.backend.send, cmd)
         except BackendError as err:
             self.failed += 1
             self.last_error = str(err)
@@ -111,7 +126,7 @@ class Transmitter:
         if beat is None:
             return
         try:
-            await asyncio.to_thread(beat)
+            await self.call(beat)
         except BackendError as err:
             self.last_error = str(err)
 
@@ -125,7 +140,7 @@ class Transmitter:
             self.pending = None
             return
         reconnect = getattr(self.backend, "reconnect", None)
-        if reconnect is not None and await asyncio.to_thread(reconnect):
+        if reconnect is not None and await self.call(reconnect):
             await self.send(cmd)
 
     @property
@@ -253,9 +268,10 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
         for task in pending:
             task.cancel()
         try:
-            await asyncio.wait_for(asyncio.to_thread(tx.backend.send,
-                                                     IrCommand(command=Command.STOP)), 1.0)
+            await asyncio.wait_for(tx.call(tx.backend.send, IrCommand(command=Command.STOP)),
+                                   1.0)
             log.info("sent stop at shutdown")
         except Exception as err:
-            log.error("could not send stop at shutdown: %s", err)
+            log.error("could not send stop at shutdown: %r", err)
         tx.backend.close()
+        tx.close()

@@ -33,6 +33,8 @@ log = logging.getLogger("shepherd.launcher")
 
 BACKOFF_S = (0.2, 0.5, 1.0, 2.0, 5.0)
 STOP_GRACE_S = 1.5
+#: services stopped (and waited for) before the others at shutdown
+STOP_FIRST = ("ir_transmitter",)
 
 
 @dataclass
@@ -157,6 +159,13 @@ async def run_deployment(dep: Deployment, *, only: list[str] | None = None,
         finally:
             run.stop.set()
             stop_wait.cancel()
+            # the IR transmitter first: its stop goes out while the other services still run
+            # (their teardown can hold the process for a second or more)
+            first = [t for t in tasks if t.get_name() in in_process and t.get_name() in STOP_FIRST]
+            for task in first:
+                task.cancel()
+            if first:
+                await asyncio.wait(first, timeout=STOP_GRACE_S)
             for task in tasks:
                 if task.get_name() in in_process:
                     task.cancel()
