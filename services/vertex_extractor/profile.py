@@ -10,8 +10,8 @@ line. Any symmetric blur (optics, defocus, motion, demosaicing) leaves a single 
 half-way crossing is the edge itself; a wide blur's edges come out a little off it, but all
 four alike, so an edge is odd only when it is off its step and off the others' offsets.
 
-One pass over at most ``MAX_POINTS`` points per edge, ``OFFSETS`` samples each (bilinear in the
-score of ``colour.score``); pure, compiled, no bus.
+At most ``MAX_POINTS`` points per edge, sampled (bilinear in ``colour.score``) at the two
+levels and at the ``OFFSETS`` between the line and the crossing only; pure, compiled, no bus.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from services.core.jit import njit
-from services.vertex_extractor.colour import chroma_direction
+from services.vertex_extractor.colour import chroma_direction, score
 
 #: profile samples across an edge, px from the fitted line (outward positive); the first and
 #: last give the inside and outside levels
@@ -43,8 +43,7 @@ def _bilinear(img, x, y, lut, w):  # type: ignore[no-untyped-def]
     for dy in range(2):
         for dx in range(2):
             wt = (fx if dx else 1.0 - fx) * (fy if dy else 1.0 - fy)
-            px = img[y0 + dy, x0 + dx]
-            acc += wt * (w[0] * lut[px[0]] + w[1] * lut[px[1]] + w[2] * lut[px[2]])
+            acc += wt * score(img, y0 + dy, x0 + dx, lut, w)
     return acc
 
 
