@@ -21,7 +21,9 @@ Where we depart from the paper, keeping its spirit:
   vertex).
 - Both levels of each edge point's sum are local (``scan._edge``): a shadow's boundary across
   the marker moves no edge; where the inside level steps along an edge (the boundary crosses
-  it) or no contrast is left (a clipped highlight, an occluder), the point is dropped.
+  it) or no contrast is left (a clipped highlight, an occluder), the point is dropped; so is
+  a point whose coverage sum and half-way crossing disagree (``scan._crossing_gap``: a
+  shaded strip of the rim inside its window, where a shadow's boundary meets the edge).
 - Each line is fitted robustly (``lines.robust_line``: Huber, then Tukey's biweight from the
   better of it and the middle half), the split moved to where the two lines meet: an arm over
   a vertex or part of an edge is left out and the vertex comes from the visible lines; a line

@@ -375,10 +375,36 @@ def _edge(img, x, end, out, window, outer, s_in, s_out, mode, lut, w, wl,  # typ
     if out < 0:
         for o in range(-outer, window):
             acc += min(max((score(img, end + o, x, lut, w) - lo) * inv, -0.5), 1.5)
-        return end + window - 0.5 - acc
-    for o in range(-window, outer):
-        acc += min(max((score(img, end + 1 + o, x, lut, w) - lo) * inv, -0.5), 1.5)
-    return end - window + 0.5 + acc
+        edge = end + window - 0.5 - acc
+        first, last = end - outer, end + window - 1
+    else:
+        for o in range(-window, outer):
+            acc += min(max((score(img, end + 1 + o, x, lut, w) - lo) * inv, -0.5), 1.5)
+        edge = end - window + 0.5 + acc
+        first, last = end + 1 - window, end + outer
+    if _crossing_gap(img, x, first, last, lo, inv, lut, w, edge) > MAX_CROSSING_GAP_PX:
+        return np.nan  # two steps: a shadow's boundary in the window, beside the edge
+    return edge
+
+
+MAX_CROSSING_GAP_PX = 0.8  # the coverage sum's edge and the half-way crossing may differ by
+
+
+@njit(inline="always")
+def _crossing_gap(img, x, first, last, lo, inv, lut, w, edge):  # type: ignore[no-untyped-def]
+    """Distance (px) from ``edge`` (the coverage sum's) to the nearest row position in
+    column x, rows ``first``..``last``, where the coverage crosses half way. One step, blurred
+    symmetrically (optics, motion, defocus), puts both at the same place; a shadow's boundary
+    within the window beside the edge makes a plateau of partial coverage, which moves the
+    sum's edge but not the crossing: they differ by the plateau's darkening times its width."""
+    best = np.inf
+    prev = (score(img, first, x, lut, w) - lo) * inv
+    for y in range(first + 1, last + 1):
+        cur = (score(img, y, x, lut, w) - lo) * inv
+        if (prev - 0.5) * (cur - 0.5) <= 0.0 and prev != cur:
+            best = min(best, abs(y - 1 + (0.5 - prev) / (cur - prev) - edge))
+        prev = cur
+    return best
 
 
 CLIPPED = 235  # a pixel whose every channel reaches this (sRGB) is a clipped highlight
