@@ -126,6 +126,60 @@ def is_marker(img: np.ndarray, y: int, x: int, lut: np.ndarray, m: np.ndarray) -
     return m[QA] * dr * dr + 2.0 * m[QB] * dr * dg + m[QC] * dg * dg <= s * s
 
 
+#: a highlight's halo: white light at least this share of the pixel's brightest channel,
+HALO_MIN_WHITE = 0.15
+#: and a channel at or above this (linear x 255; sRGB 250) is clipped: it has lost chroma
+HALO_CLIPPED = 243.0
+#: the halo keeps most of the marker's chroma (a blurred fringe over a bright surround, the
+#: marker mixed with grey, keeps only its share of it): at least this share of the seed's,
+HALO_MIN_CHROMA = 0.85
+#: or of it where a channel clips (clipping takes chroma away as the light grows)
+HALO_MIN_CHROMA_CLIPPED = 0.25
+
+
+@njit(inline="always")
+def chroma_amount(img: np.ndarray, y: int, x: int, lut: np.ndarray) -> float:
+    """Pixel (x, y)'s linear colour less its grey part (R + G + B - 3 min, x 255)."""
+    b = lut[img[y, x, 0]]
+    g = lut[img[y, x, 1]]
+    r = lut[img[y, x, 2]]
+    return b + g + r - 3.0 * min(min(b, g), r)
+
+
+@njit(inline="always")
+def is_lit_marker(img: np.ndarray, y: int, x: int, lut: np.ndarray, m: np.ndarray,
+                  min_chroma: float, unclipped: bool) -> bool:
+    """The interior test, or the marker under a glossy print's highlight: the marker's
+    colour plus white light (in linear light the pixel less its smallest channel passes the
+    test with at least ``min_chroma`` of chroma (``chroma_amount``), and the white is at
+    least ``HALO_MIN_WHITE`` of the brightest channel). The walk goes on through such pixels
+    instead of ending its run at the halo; ``unclipped``: only where no channel clips
+    (adding white moves no chroma score, so these still measure an edge; clipping does)."""
+    b = lut[img[y, x, 0]]
+    g = lut[img[y, x, 1]]
+    r = lut[img[y, x, 2]]
+    s = r + g + b
+    if s < m[MIN_SUM] or s <= 0.0:
+        return False
+    dr = r - m[R0] * s
+    dg = g - m[G0] * s
+    if m[QA] * dr * dr + 2.0 * m[QB] * dr * dg + m[QC] * dg * dg <= s * s:
+        return True
+    lo = min(min(b, g), r)
+    hi = max(max(b, g), r)
+    clipped = hi >= HALO_CLIPPED
+    if lo < HALO_MIN_WHITE * hi or (unclipped and clipped):
+        return False
+    b, g, r = b - lo, g - lo, r - lo
+    s = r + g + b
+    least = min_chroma * (HALO_MIN_CHROMA_CLIPPED / HALO_MIN_CHROMA if clipped else 1.0)
+    if s < max(least, m[MIN_SUM]):
+        return False
+    dr = r - m[R0] * s
+    dg = g - m[G0] * s
+    return m[QA] * dr * dr + 2.0 * m[QB] * dr * dg + m[QC] * dg * dg <= s * s
+
+
 @njit(inline="always")
 def score(img: np.ndarray, y: int, x: int, lut: np.ndarray, w: np.ndarray) -> float:
     """Pixel (x, y)'s linear colour (x 255) along the chroma direction ``w`` (B, G, R weights,

@@ -161,6 +161,15 @@ def _miss(reason: str, tracked: bool = False) -> Detection:
     return Detection(False, reason=reason, tracked=tracked)
 
 
+SAME_MARKER_PX = 3.0  # two detections whose vertices all lie this close are one marker
+
+
+def _same_marker(a: Detection, b: Detection) -> bool:
+    """Do two found detections (from two blobs of the cold search) measure one marker?"""
+    assert a.vertices_px is not None and b.vertices_px is not None
+    return bool(np.abs(a.vertices_px - b.vertices_px).max() < SAME_MARKER_PX)
+
+
 class RhombusExtractor:
     """Stateful extractor: remembers the last marker to seed the next frame (tracking)."""
 
@@ -245,8 +254,8 @@ class RhombusExtractor:
                 if cells2 < 0.4 * cells:
                     break
                 other = self._extract_from(image, (x2, y2, r2), tracked=False)
-                if not other.found:
-                    continue
+                if not other.found or _same_marker(det, other):
+                    continue  # (a highlight or an arm splits one marker's blob in two)
                 lo, hi = sorted((det.residual_px, other.residual_px))
                 if hi < 3 * lo + 0.1:
                     self._seed = None

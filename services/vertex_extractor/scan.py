@@ -16,7 +16,16 @@ from __future__ import annotations
 import numpy as np
 
 from services.core.jit import njit
-from services.vertex_extractor.colour import chroma_direction, is_marker, score
+from services.vertex_extractor.colour import (
+    HALO_CLIPPED,
+    HALO_MIN_CHROMA,
+    HALO_MIN_WHITE,
+    chroma_amount,
+    chroma_direction,
+    is_lit_marker,
+    is_marker,
+    score,
+)
 
 OK, BORDER, LOW_CONTRAST = 0, 1, 2
 #: least marker-to-surround score difference (linear light x 255): this many times the inside's
@@ -27,12 +36,12 @@ CONTRAST_SNR = 8.0
 
 
 @njit(inline="always")
-def _run_up(img, x, y, lut, m):  # type: ignore[no-untyped-def]
+def _run_up(img, x, y, lut, m, chroma):  # type: ignore[no-untyped-def]
     """Topmost row of the run of marker pixels containing (x, y), bridging 1-px gaps."""
     while y > 0:
-        if is_marker(img, y - 1, x, lut, m):
+        if is_lit_marker(img, y - 1, x, lut, m, chroma, False):
             y -= 1
-        elif y > 1 and is_marker(img, y - 2, x, lut, m):
+        elif y > 1 and is_lit_marker(img, y - 2, x, lut, m, chroma, False):
             y -= 2
         else:
             break
@@ -40,13 +49,13 @@ def _run_up(img, x, y, lut, m):  # type: ignore[no-untyped-def]
 
 
 @njit(inline="always")
-def _run_down(img, x, y, lut, m):  # type: ignore[no-untyped-def]
+def _run_down(img, x, y, lut, m, chroma):  # type: ignore[no-untyped-def]
     """Bottom row of the run of marker pixels containing (x, y), bridging 1-px gaps."""
     last = img.shape[0] - 1
     while y < last:
-        if is_marker(img, y + 1, x, lut, m):
+        if is_lit_marker(img, y + 1, x, lut, m, chroma, False):
             y += 1
-        elif y < last - 1 and is_marker(img, y + 2, x, lut, m):
+        elif y < last - 1 and is_lit_marker(img, y + 2, x, lut, m, chroma, False):
             y += 2
         else:
             break
@@ -54,25 +63,25 @@ def _run_down(img, x, y, lut, m):  # type: ignore[no-untyped-def]
 
 
 @njit(inline="always")
-def _column(img, x, prev_top, prev_bottom, lut, m):  # type: ignore[no-untyped-def]
+def _column(img, x, prev_top, prev_bottom, lut, m, chroma):  # type: ignore[no-untyped-def]
     """(top, bottom) rows of column x's run overlapping the previous column's run
     [prev_top, prev_bottom]; (-1, -1) when the column has none."""
     y = prev_top
-    if is_marker(img, y, x, lut, m):
-        top = _run_up(img, x, y, lut, m)
+    if is_lit_marker(img, y, x, lut, m, chroma, False):
+        top = _run_up(img, x, y, lut, m, chroma)
     else:
         y += 1
-        while y <= prev_bottom and not is_marker(img, y, x, lut, m):
+        while y <= prev_bottom and not is_lit_marker(img, y, x, lut, m, chroma, False):
             y += 1
         if y > prev_bottom:
             return -1, -1
         top = y
     y = prev_bottom
-    if is_marker(img, y, x, lut, m):
-        bottom = _run_down(img, x, y, lut, m)
+    if is_lit_marker(img, y, x, lut, m, chroma, False):
+        bottom = _run_down(img, x, y, lut, m, chroma)
     else:
         y -= 1
-        while y > top and not is_marker(img, y, x, lut, m):
+        while y > top and not is_lit_marker(img, y, x, lut, m, chroma, False):
             y -= 1
         bottom = y
     return top, bottom
@@ -115,14 +124,16 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     box = np.zeros(4, np.int64)
     top = np.full(W, -1, np.int64)
     bottom = np.full(W, -1, np.int64)
-    top[sx] = _run_up(img, sx, sy, lut, m)
-    bottom[sx] = _run_down(img, sx, sy, lut, m)
+    # a highlight's halo keeps most of the marker's chroma (the seed is a marker pixel)
+    halo_chroma = HALO_MIN_CHROMA * chroma_amount(img, sy, sx, lut)
+    top[sx] = _run_up(img, sx, sy, lut, m, halo_chroma)
+    bottom[sx] = _run_down(img, sx, sy, lut, m, halo_chroma)
     lo, hi = sx, sx + 1  # walked columns [lo, hi)
     for step in (1, -1):
         t, b = top[sx], bottom[sx]
         x = sx + step
         while 0 <= x < W:
-            t, b = _column(img, x, t, b, lut, m)
+            t, b = _column(img, x, t, b, lut, m, halo_chroma)
             if t < 0:
                 break
             top[x], bottom[x] = t, b
@@ -202,7 +213,7 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
                 r = end - out * (window + ext + 1 + k)
                 if (r - mid) * out < 0:  # past the middle row: stay on this edge's half
                     r = mid
-                if is_marker(img, r, x, lut, m):  # not an occluder or a clipped highlight
+                if is_lit_marker(img, r, x, lut, m, halo_chroma, True):  # not hidden or clipped
                     for c in range(3):
                         colour[side, i + 1, c] += lut[img[r, x, c]]
                     colour[side, i + 1, 3] += 1.0
@@ -246,6 +257,14 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
                 local[c] = (t * (colour[side, i1, c] - colour[side, i0, c]) / count
                             + (1.0 - t) * colour[side, n, c] / total)
             ext = exts[side, i]
+            end = top[x] if side == 0 else bottom[x]
+            if _at_highlight(img, x, end, -1 if side == 0 else 1, lut) or _clipped_halo(
+                    img, x, end, -1 if side == 0 else 1, window + ext, lut):
+                if side == 0:
+                    u[i, 1] = np.nan
+                else:
+                    d[i, 1] = np.nan
+                continue
             if side == 0:
                 u[i, 1] = _edge(img, x, top[x], -1, window + ext, outer + ext, s_in, s_out,
                                 edge_mode, lut, w, wl, local)
@@ -408,6 +427,43 @@ def _crossing_gap(img, x, first, last, lo, inv, lut, w, edge):  # type: ignore[n
 
 
 CLIPPED = 235  # a pixel whose every channel reaches this (sRGB) is a clipped highlight
+HIGHLIGHT_DEPTH = 3  # rows inside a run's end where a highlight's halo shows
+
+
+@njit(inline="always")
+def _clipped_halo(img, x, end, out, window, lut):  # type: ignore[no-untyped-def]
+    """Is the marker side of column x's edge window (rows 1 to ``window`` inside the run's
+    end) in a highlight's halo where a channel clips? White light moves no chroma score
+    until the ink's own channels clip; then the edge's inside level is wrong there. (Plain
+    ink as bright has no white in it: its green stays dark.)"""
+    H = img.shape[0]
+    for k in range(1, window + 1):
+        r = end - out * k
+        if r < 0 or r >= H:
+            return False
+        b, g, rr = lut[img[r, x, 0]], lut[img[r, x, 1]], lut[img[r, x, 2]]
+        hi = max(max(b, g), rr)
+        if hi >= HALO_CLIPPED and min(min(b, g), rr) >= HALO_MIN_WHITE * hi:
+            return True
+    return False
+
+
+@njit(inline="always")
+def _at_highlight(img, x, end, out, lut):  # type: ignore[no-untyped-def]
+    """Does column x's run end at ``end`` (``out`` = -1: its top, +1: its bottom) on a
+    highlight's clipped core rather than on the marker's edge? Clipped white just beyond the
+    end and the halo's white light a few rows inside it (``colour.HALO_MIN_WHITE``): a marker
+    on a clipped white surround has plain ink there, past the blur."""
+    H = img.shape[0]
+    r = end + out
+    if r < 0 or r >= H or img[r, x, 0] < CLIPPED or img[r, x, 1] < CLIPPED or \
+            img[r, x, 2] < CLIPPED:
+        return False
+    r = end - out * HIGHLIGHT_DEPTH
+    if r < 0 or r >= H:
+        return False
+    b, g, rr = lut[img[r, x, 0]], lut[img[r, x, 1]], lut[img[r, x, 2]]
+    return min(min(b, g), rr) >= HALO_MIN_WHITE * max(max(b, g), rr)
 
 
 @njit()
