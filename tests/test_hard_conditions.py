@@ -268,3 +268,55 @@ def test_a_small_markers_blurred_fringe_does_not_refuse_it_but_a_bigger_blob_doe
     assert verdict(area + 9.0 * np.sqrt(area)) == lines.PLAUSIBLE
     assert verdict(1.15 * area + 12.0 * np.sqrt(area)) == lines.AREA_MISMATCH
     assert verdict(0.6 * area) == lines.AREA_MISMATCH  # most of the blob missing
+
+
+def test_a_glossy_prints_highlight_is_walked_through_and_never_wrong():
+    """The walk goes on through the highlight's halo (the marker's colour plus white light)
+    and leaves out the edge points on its clipped core: half the views or more are found
+    (a third before), none wrong."""
+    errors, wrong, total, dets = _run("specular highlight, clipped", 30)
+    assert wrong == 0, f"{wrong} of {total} wrong"
+    assert len(errors) >= 0.5 * total, (len(errors), total)
+    _within_reported(dets)
+
+
+def test_the_halo_is_the_marker_plus_white_but_a_blurred_fringe_over_grey_is_not():
+    from services.vertex_extractor.colour import ColourModel, chroma_amount, is_lit_marker
+    cm = ColourModel()
+    lut, m = cm.lut, cm.vector
+
+    def pixel(linear_bgr: tuple[float, float, float]) -> np.ndarray:
+        v = np.clip(np.array(linear_bgr), 0, 1)
+        srgb = np.where(v <= 0.0031308, 12.92 * v, 1.055 * v ** (1 / 2.4) - 0.055)
+        return np.round(srgb * 255).astype(np.uint8).reshape(1, 1, 3)
+
+    ink = pixel((0.6, 0.0, 0.6))
+    chroma = 0.85 * chroma_amount(ink, 0, 0, lut)
+    halo = pixel((0.85, 0.25, 0.85))          # the ink plus 0.25 white
+    fringe = pixel((0.3 + 0.3, 0.3, 0.3 + 0.3))  # half ink, half a 0.6 grey wall
+    assert is_lit_marker(ink, 0, 0, lut, m, chroma, True)
+    assert not cm.mask(halo)[0, 0] and is_lit_marker(halo, 0, 0, lut, m, chroma, True)
+    assert not is_lit_marker(fringe, 0, 0, lut, m, chroma, False)
+    clipped = pixel((1.0, 0.5, 1.0))           # ink channels clipped in the halo
+    assert is_lit_marker(clipped, 0, 0, lut, m, chroma, False)      # walked through
+    assert not is_lit_marker(clipped, 0, 0, lut, m, chroma, True)   # but not measured
+    assert not is_lit_marker(pixel((1.0, 1.0, 1.0)), 0, 0, lut, m, chroma, False)
+
+
+def test_a_vertex_whose_edges_do_not_step_there_is_refused_unless_it_is_hidden():
+    from services.vertex_extractor.profile import odd_vertex, vertex_steps
+    # eight stretches: edge k next to vertex k, then edge k next to vertex k + 1
+    assert odd_vertex(np.array([0.1, 0.0, -0.1, 0.0, 0.1, 0.0, 0.0, 0.1]), 1.0) == (-1, 0.0)
+    k, deviation = odd_vertex(np.array([0.1, 0.0, -0.1, 0.0, 0.1, 0.0, -1.6, 0.1]), 1.0)
+    assert k == 3 and abs(deviation - 1.6) < 1e-9    # edge 2 (lower right) next to the bottom
+    assert odd_vertex(np.array([np.nan, 0.0, -1.5, 0.0, 0.1, 0.0, 0.0, 0.1]), 1.0)[0] == 2
+    # an arm over the top vertex: its two stretches are not read
+    cm = RhombusExtractor().params.colour
+    img = np.full((120, 160, 3), 90, np.uint8)
+    v = np.array([[30.0, 60.0], [80.0, 20.0], [130.0, 60.0], [80.0, 100.0]])
+    cv2.fillConvexPoly(img, np.round(v * 16).astype(np.int32), (200, 40, 200), cv2.LINE_AA, 4)
+    img[15:38, 70:91] = (60, 120, 200)  # skin over the top vertex
+    steps = vertex_steps(img, v, cm.lut, cm.vector)
+    assert np.isnan(steps[1]) and np.isnan(steps[4])       # next to the hidden top vertex
+    seen = steps[[0, 2, 3, 5, 6, 7]]  # alike (an sRGB-drawn edge's steps lie off it alike)
+    assert np.all(np.abs(seen - np.median(seen)) < 0.1) and odd_vertex(steps, 1.0)[0] == -1

@@ -123,6 +123,10 @@ class ExtractorParams(BaseModel):
     max_step_spread_px: float = Field(
         default=0.3, ge=0, description="see max_step_offset_px (a blurred marker's edges lie "
         "off their steps alike)")
+    max_vertex_step_px: float = Field(
+        default=1.0, gt=0, description="next to each visible vertex, each edge's profile "
+        "must cross half way within this of the median of all such stretches (a shadow's "
+        "boundary near a vertex moves it; profile.vertex_steps)")
     max_outside_share: float = Field(
         default=0.2, gt=0, le=1, description="share of one edge's points allowed outside the "
                                              "quadrilateral (beyond its line's noise band)")
@@ -139,6 +143,7 @@ class ExtractorParams(BaseModel):
 
 #: the quadrilateral's edges, from vertex k (left, top, right, bottom) to the next
 _EDGE_NAMES = ("upper left", "upper right", "lower right", "lower left")
+_VERTEX_NAMES = ("left", "top", "right", "bottom")
 _EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING,
           "orthogonal": scan.ORTHOGONAL}
 
@@ -327,6 +332,15 @@ class RhombusExtractor:
                 " edge is not a clean step: its profile crosses half way "
                 f"{offsets[k]:+.1f}"
                 " px from the fitted line (a shadow's boundary along it?)", tracked)
+        k, deviation = profile.odd_vertex(profile.vertex_steps(image, v, lut, model),
+                                          p.max_vertex_step_px)
+        if k >= 0:
+            self._seed = None
+            return _miss(
+                f"the {_VERTEX_NAMES[k]}"
+                " vertex is not where its edges step: next to it an edge's profile crosses "
+                f"half way {deviation:.1f}"
+                " px off the others (a shadow's boundary near the vertex?)", tracked)
         self._seed = (int(stats[measure.SEED_X]), int(stats[measure.SEED_Y]),
                       int(stats[measure.SEED_RADIUS]))
         return Detection(True, v, float(stats[measure.AREA_RATIO]),

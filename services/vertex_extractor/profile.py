@@ -21,7 +21,7 @@ import math
 import numpy as np
 
 from services.core.jit import njit
-from services.vertex_extractor.colour import chroma_direction, score
+from services.vertex_extractor.colour import chroma_direction, is_marker, score
 
 #: profile samples across an edge, px from the fitted line (outward positive); the first and
 #: last give the inside and outside levels
@@ -56,7 +56,8 @@ def _median_at(img, bx, by, nx, ny, off, lo, inv, keep, lut, w, buf):  # type: i
 
 
 @njit()
-def step_offsets(img: np.ndarray, v: np.ndarray, lut: np.ndarray) -> np.ndarray:
+def step_offsets(img: np.ndarray, v: np.ndarray, lut: np.ndarray, a0: float = 0.15,
+                 a1: float = 0.85) -> np.ndarray:
     """For each edge of the quadrilateral v (4, 2) px (L, T, R, B), how far (px, outward
     positive) from the fitted line its median profile crosses half way between the inside
     and outside levels (walking from the line towards the crossing, so the profile is read
@@ -89,9 +90,9 @@ def step_offsets(img: np.ndarray, v: np.ndarray, lut: np.ndarray) -> np.ndarray:
         nx, ny = ty, -tx
         if nx * (0.5 * (px_ + qx) - cx) + ny * (0.5 * (py_ + qy) - cy) < 0:
             nx, ny = -nx, -ny
-        count = min(MAX_POINTS, max(int(0.7 * length), 1))
+        count = min(MAX_POINTS, max(int((a1 - a0) * length), 1))
         for i in range(count):
-            a = length * (0.15 + 0.7 * (i + 0.5) / count)
+            a = length * (a0 + (a1 - a0) * (i + 0.5) / count)
             bx[i], by[i] = px_ + a * tx, py_ + a * ty
             lo[i] = _bilinear(img, bx[i] + OFFSETS[-1] * nx, by[i] + OFFSETS[-1] * ny, lut, w)
             span[i] = _bilinear(img, bx[i] + OFFSETS[0] * nx, by[i] + OFFSETS[0] * ny, lut,
@@ -118,6 +119,55 @@ def step_offsets(img: np.ndarray, v: np.ndarray, lut: np.ndarray) -> np.ndarray:
                 break
             j, m = j + step, m2
     return out
+
+
+#: the stretch of each edge next to a vertex whose profile ``vertex_steps`` reads (shares of
+#: the edge's length from that vertex)
+NEAR_VERTEX = (0.03, 0.3)
+#: a vertex is visible when the marker's colour is found at these shares of the way from it
+#: to the centre (a shaded vertex is still the marker's chroma; an arm over it is not)
+VISIBLE_AT = (0.12, 0.18)
+
+
+@njit()
+def vertex_steps(img: np.ndarray, v: np.ndarray, lut: np.ndarray, m: np.ndarray
+                 ) -> np.ndarray:
+    """``step_offsets`` of the stretch of each edge next to each vertex (8: edge k next to
+    vertex k, then edge k next to vertex k + 1), NaN where that vertex is hidden (an arm or
+    a bar over it: no marker colour just inside it; its place then comes from the lines)."""
+    a0, a1 = NEAR_VERTEX
+    out = np.empty(8)
+    out[:4] = step_offsets(img, v, lut, a0, a1)
+    out[4:] = step_offsets(img, v, lut, 1.0 - a1, 1.0 - a0)
+    H, W = img.shape[0], img.shape[1]
+    cx = 0.25 * (v[0, 0] + v[1, 0] + v[2, 0] + v[3, 0])
+    cy = 0.25 * (v[0, 1] + v[1, 1] + v[2, 1] + v[3, 1])
+    for k in range(4):
+        seen = True
+        for f in VISIBLE_AT:
+            x = int(v[k, 0] + f * (cx - v[k, 0]) + 0.5)
+            y = int(v[k, 1] + f * (cy - v[k, 1]) + 0.5)
+            if not (0 <= x < W and 0 <= y < H and is_marker(img, y, x, lut, m)):
+                seen = False
+        if not seen:
+            out[k] = np.nan
+            out[4 + (k + 3) % 4] = np.nan
+    return out
+
+
+def odd_vertex(offsets: np.ndarray, max_deviation_px: float) -> tuple[int, float]:
+    """The vertex (0-3) one of whose edges, next to it, steps further than
+    ``max_deviation_px`` from the median of the eight stretches' offsets (``vertex_steps``),
+    and that deviation; (-1, 0) for none. A shadow's boundary near a vertex bends the edge
+    points there, and the vertex the lines give is then px off while the edges' middles are
+    fine (``odd_edge`` does not see it)."""
+    o = offsets.tolist()
+    median = float(np.median([0.0 if math.isnan(x) else x for x in o]))
+    odd, worst = -1, max_deviation_px
+    for i, x in enumerate(o):
+        if not math.isnan(x) and abs(x - median) > worst:
+            odd, worst = (i if i < 4 else (i - 3) % 4), abs(x - median)
+    return odd, (worst if odd >= 0 else 0.0)
 
 
 #: an outward offset (the step beyond the line) is allowed this many times the inward limit:
@@ -147,5 +197,7 @@ def warm_up() -> None:
     """Compile (or load) the kernel for read-only frames, the service's."""
     img = np.zeros((40, 40, 3), np.uint8)
     img.flags.writeable = False
-    step_offsets(img, np.array([[10.0, 20.0], [20.0, 10.0], [30.0, 20.0], [20.0, 30.0]]),
-                 np.linspace(0.0, 255.0, 256))
+    v = np.array([[10.0, 20.0], [20.0, 10.0], [30.0, 20.0], [20.0, 30.0]])
+    lut = np.linspace(0.0, 255.0, 256)
+    step_offsets(img, v, lut)
+    vertex_steps(img, v, lut, np.array([0.615, 0.02, 1.0, 0.0, 1.0, 12.75]))
