@@ -24,6 +24,11 @@ Where we depart from the paper, keeping its spirit:
   it) or no contrast is left (a clipped highlight, an occluder), the point is dropped; so is
   a point whose coverage sum and half-way crossing disagree (``scan._crossing_gap``: a
   shaded strip of the rim inside its window, where a shadow's boundary meets the edge).
+- A glossy print's highlight: the walk goes on through its halo (the marker's colour plus
+  white light, ``colour.is_lit_marker``), and edge points are left out where a run ends on
+  the clipped core or the ink inside the window clips (``scan._at_highlight``,
+  ``scan._clipped_halo``); two blobs of one marker (split by a highlight or an arm) are not
+  ambiguous.
 - Each line is fitted robustly (``lines.robust_line``: Huber, then Tukey's biweight from the
   better of it and the middle half), the split moved to where the two lines meet: an arm over
   a vertex or part of an edge is left out and the vertex comes from the visible lines; a line
@@ -40,8 +45,10 @@ Where we depart from the paper, keeping its spirit:
   (``use_intrinsics``) the best planar pose of the rhombus must also reproject the vertices
   and view it as the deployment can (``shape.py``). Each edge must be a clean step: a
   shadow's boundary running along an edge just inside the marker moves the whole edge by a
-  steady 1-3 px, which the median profile across it shows (``profile.py``). Anything else is
-  ``found = False`` with a reason.
+  steady 1-3 px, which the median profile across it shows (``profile.py``); next to each
+  visible vertex, each edge must step where the others do (``profile.vertex_steps``: a
+  shadow's boundary near a vertex bends the points there and the lines miss the vertex).
+  Anything else is ``found = False`` with a reason.
 - Each detection carries its per-vertex covariance (px²): the line fits' offset and angle
   variances propagated through the intersections, scaled for the points' correlation
   (``COV_SCALE``); one whose largest sigma exceeds ``max_vertex_sigma_px`` is refused.
@@ -338,8 +345,9 @@ class RhombusExtractor:
             self._seed = None
             return _miss(
                 f"the {_VERTEX_NAMES[k]}"
-                " vertex is not where its edges step: next to it an edge's profile crosses "
-                f"half way {deviation:.1f}"
+                " vertex is not where its edges step: next to it an edge's profile"
+                " crosses half way "
+                f"{deviation:.1f}"
                 " px off the others (a shadow's boundary near the vertex?)", tracked)
         self._seed = (int(stats[measure.SEED_X]), int(stats[measure.SEED_Y]),
                       int(stats[measure.SEED_RADIUS]))
