@@ -345,8 +345,7 @@ class RhombusExtractor:
             self._seed = None
             return _miss(
                 f"the {_VERTEX_NAMES[k]}"
-                " vertex is not where its edges step: next to it an edge's profile"
-                " crosses half way "
+                " vertex is off its edges' steps: next to it an edge's profile crosses half way "
                 f"{deviation:.1f}"
                 " px off the others (a shadow's boundary near the vertex?)", tracked)
         self._seed = (int(stats[measure.SEED_X]), int(stats[measure.SEED_Y]),
