@@ -113,17 +113,20 @@ class ColourModel(BaseModel):
 
 
 @njit(inline="always")
-def is_marker(img: np.ndarray, y: int, x: int, lut: np.ndarray, m: np.ndarray) -> bool:
-    """The interior test of pixel (x, y) of a BGR uint8 image."""
-    b = lut[img[y, x, 0]]
-    g = lut[img[y, x, 1]]
-    r = lut[img[y, x, 2]]
+def _inside(b: float, g: float, r: float, m: np.ndarray) -> bool:
+    """The interior test of a linear colour (x 255)."""
     s = r + g + b
     if s < m[MIN_SUM] or s <= 0.0:
         return False
     dr = r - m[R0] * s  # the chromaticity offsets times s: no division
     dg = g - m[G0] * s
     return m[QA] * dr * dr + 2.0 * m[QB] * dr * dg + m[QC] * dg * dg <= s * s
+
+
+@njit(inline="always")
+def is_marker(img: np.ndarray, y: int, x: int, lut: np.ndarray, m: np.ndarray) -> bool:
+    """The interior test of pixel (x, y) of a BGR uint8 image."""
+    return _inside(lut[img[y, x, 0]], lut[img[y, x, 1]], lut[img[y, x, 2]], m)
 
 
 #: a highlight's halo: white light at least this share of the pixel's brightest channel,
@@ -158,26 +161,17 @@ def is_lit_marker(img: np.ndarray, y: int, x: int, lut: np.ndarray, m: np.ndarra
     b = lut[img[y, x, 0]]
     g = lut[img[y, x, 1]]
     r = lut[img[y, x, 2]]
-    s = r + g + b
-    if s < m[MIN_SUM] or s <= 0.0:
-        return False
-    dr = r - m[R0] * s
-    dg = g - m[G0] * s
-    if m[QA] * dr * dr + 2.0 * m[QB] * dr * dg + m[QC] * dg * dg <= s * s:
+    if _inside(b, g, r, m):
         return True
     lo = min(min(b, g), r)
     hi = max(max(b, g), r)
     clipped = hi >= HALO_CLIPPED
     if lo < HALO_MIN_WHITE * hi or (unclipped and clipped):
         return False
-    b, g, r = b - lo, g - lo, r - lo
-    s = r + g + b
     least = min_chroma * (HALO_MIN_CHROMA_CLIPPED / HALO_MIN_CHROMA if clipped else 1.0)
-    if s < max(least, m[MIN_SUM]):
+    if b + g + r - 3.0 * lo < least:
         return False
-    dr = r - m[R0] * s
-    dg = g - m[G0] * s
-    return m[QA] * dr * dr + 2.0 * m[QB] * dr * dg + m[QC] * dg * dg <= s * s
+    return _inside(b - lo, g - lo, r - lo, m)
 
 
 @njit(inline="always")
