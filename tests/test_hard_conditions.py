@@ -104,6 +104,19 @@ def test_an_arm_over_a_vertex_is_never_fitted_and_the_vertex_comes_from_the_line
     _within_reported(dets)
 
 
+def test_a_tall_markers_rows_measure_it_where_an_arm_bends_its_column_lines():
+    """A tall marker whose column lines do not fit it (not straight, an edge hidden, points
+    beyond it: an arm over a vertex bends them) is measured along its rows, judged by the
+    same tests: 3 of these 60 views were refused so; now 1, none wrong."""
+    found = total = 0
+    for seed in (2024, 7):
+        errors, wrong, n, dets = _run("limb or bar over one vertex", 30, seed=seed)
+        assert wrong == 0, (seed, wrong)
+        _within_reported(dets)
+        found, total = found + len(errors), total + n
+    assert found >= total - 1, (found, total)
+
+
 def _within_reported(dets: list) -> None:
     """Never confidently wrong: each vertex within 2 px or 3 of its reported sigmas."""
     for det, r in dets:
@@ -177,6 +190,15 @@ def test_steep_and_small_markers_are_found():
     for condition in ("steep: 55-70 deg", "small: 25-40 px across"):
         errors, wrong, total, _ = _run(condition, 20)
         assert wrong <= 1 and len(errors) >= 0.75 * total, (condition, wrong, len(errors), total)
+
+
+def test_steep_views_are_found_through_glancing_columns_and_sharp_vertices():
+    """55-70 deg off the normal the marker is tall and narrow: its columns cross the near-
+    vertical edges at a glancing angle (their lines met off the image: "a vertex falls
+    outside"), and next to its sharp vertices the profile's inside level fell on the surround
+    (the vertex test refused clean views). 7 of these 75 views were refused so; now none."""
+    errors, wrong, total, _ = _run("steep: 55-70 deg", 75, seed=11)
+    assert wrong == 0 and len(errors) >= total - 1, (wrong, len(errors), total)
 
 
 @pytest.mark.slow  # many renders

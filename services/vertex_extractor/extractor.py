@@ -52,10 +52,12 @@ Where we depart from the paper, keeping its spirit:
 - Each detection carries its per-vertex covariance (px²): the line fits' offset and angle
   variances propagated through the intersections, scaled for the points' correlation
   (``COV_SCALE``); one whose largest sigma exceeds ``max_vertex_sigma_px`` is refused.
-- A tall, narrow marker (steep views) is scanned along its rows when its columns are too few;
-  any other marker is scanned along its rows as well and the two results checked against
-  each other (``measure.cross_check``): blur along the columns or a shadow's boundary inside one
-  scan's window moves that scan's edges; the vertices are the two scans' mean, their
+- A marker whose columns are too few (small), or a tall one whose column lines do not fit it
+  (a steep view's near-vertical edges crossed at a glancing angle, an arm over a vertex), is
+  scanned along its rows instead, under the same tests; any other marker is scanned along
+  its rows as well and the two results checked against each other (``measure.cross_check``):
+  blur along the columns or a shadow's boundary inside one scan's window moves that scan's
+  edges; the vertices are the two scans' mean, their
   disagreement grows the covariance, and a large one is refused.
 
 Limits: one marker per frame (two similar blobs on a cold search are refused as ambiguous);

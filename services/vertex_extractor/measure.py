@@ -26,6 +26,9 @@ FIT, VERDICT, SHAPE, UNCERTAIN, DISAGREE = 10, 20, 30, 31, 32
 #: statuses of a marker that may be too small for the parameters (a second try, or the
 #: row scan for a tall narrow one)
 FEW = (SMALL_AREA, FEW_COLUMNS, FEW_POINTS, FIT + lines.TOO_FEW_POINTS)
+#: a marker this many times taller than wide whose column lines do not fit it is scanned along
+#: its rows instead (a steep view: its near-vertical edges cross few columns)
+TALL = 1.3
 
 # the parameter vector (``params_vector``)
 (MIN_LEN, DX, WINDOW, EDGE, OUTER, MIN_AREA, MIN_POINTS, MAX_OUTSIDE_SHARE, COV_SCALE,
@@ -34,6 +37,17 @@ FEW = (SMALL_AREA, FEW_COLUMNS, FEW_POINTS, FIT + lines.TOO_FEW_POINTS)
 # the figures returned beside the status
 (AREA, COLUMNS, CONTRAST, RESIDUAL, QUAD_AREA, ANGLE_MIN, ANGLE_MAX, TILT, ROLL, PITCH,
  SIGMA, GAP, AREA_RATIO, SEED_X, SEED_Y, SEED_RADIUS, N_STATS) = range(17)
+
+
+@njit(inline="always")
+def fit_failed(status: int) -> bool:
+    """The column lines do not fit the marker: parallel, a vertex off the image, not convex,
+    bad angles, not straight, the blob not the quadrilateral's, points beyond it or an edge
+    hidden (a steep view's glancing columns, or an arm across them)."""
+    return status == FIT + lines.PARALLEL or status == FIT + lines.HIDDEN_EDGE or \
+        status == FIT + lines.OUTSIDE_POINTS or status == VERDICT + lines.OUTSIDE or \
+        status == VERDICT + lines.NOT_CONVEX or status == VERDICT + lines.BAD_ANGLES or \
+        status == VERDICT + lines.NOT_STRAIGHT or status == VERDICT + lines.AREA_MISMATCH
 
 
 @njit()
@@ -161,8 +175,10 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
             prm: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
                                       np.ndarray]:
     """The marker at or near the seed (x, y) (a marker pixel within ``radius`` px) measured
-    along the columns and judged; then along the rows: for a tall narrow marker whose
-    columns are too few instead, otherwise as a cross-check (``cross_check``; refused when
+    along the columns and judged; then along the rows: instead, for a marker whose columns
+    are too few (a small one) or a tall one whose column lines do not fit it (``fit_failed``:
+    a steep view's near-vertical edges crossed at a glancing angle, an arm across them);
+    otherwise as a cross-check (``cross_check``; refused when
     the scans disagree by more than ``prm[MAX_GAP]`` px).
 
     Returns (status, stats, vertices (4, 2) px, covariance (4, 2, 2) px², U and D edge
@@ -185,9 +201,12 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
     found, u, d = _judge(img, status, area, n, contrast, u, d, W, H, prm, -1, -1, stats, v,
                          cov)
     if found != FOUND:
-        if status != scan.BORDER and box[3] - box[2] > 1.3 * (box[1] - box[0]) and (
-                found == SMALL_AREA or found == FEW_COLUMNS or found == FEW_POINTS or
-                found == FIT + lines.TOO_FEW_POINTS):
+        few = found == SMALL_AREA or found == FEW_COLUMNS or found == FEW_POINTS or \
+            found == FIT + lines.TOO_FEW_POINTS
+        # the column lines not the marker's (not an uncertain one: a shadow's bias that the
+        # rows, without a cross-check, would not see)
+        tall = box[3] - box[2] > TALL * (box[1] - box[0])
+        if status != scan.BORDER and (few or (tall and fit_failed(found))):
             stats_rows = np.zeros(N_STATS)
             rows, u_rows, d_rows = _rows(img, sx, sy, box, lut, m, prm, stats_rows, v, cov)
             if rows == FOUND:

@@ -47,6 +47,28 @@ def _bilinear(img, x, y, lut, w):  # type: ignore[no-untyped-def]
     return acc
 
 
+#: a vertex sharper than this (deg; a steep view's) has its other edge within the inside
+#: level's reach (``OFFSETS[0]``) along the first few px of each edge: those are not read
+SHARP_DEG = 45.0
+CLEAR_PX = 1.5  # how far (px) from the other edge the inside level is then read, at least
+
+
+@njit(inline="always")
+def _clearance(v, k):  # type: ignore[no-untyped-def]
+    """How far (px) along either edge from vertex k its points are not read: none unless the
+    vertex is sharper than ``SHARP_DEG`` (the first px next to a vertex are where a shadow's
+    boundary shows), then as far as the inside level comes within ``CLEAR_PX`` of the other
+    edge."""
+    ax, ay = v[(k + 1) % 4, 0] - v[k, 0], v[(k + 1) % 4, 1] - v[k, 1]
+    bx, by = v[(k + 3) % 4, 0] - v[k, 0], v[(k + 3) % 4, 1] - v[k, 1]
+    norms = max(math.hypot(ax, ay) * math.hypot(bx, by), 1e-9)
+    cosine = (ax * bx + ay * by) / norms
+    if cosine < math.cos(math.radians(SHARP_DEG)):
+        return 0.0
+    sine = max(abs(ax * by - ay * bx) / norms, 1e-3)
+    return (CLEAR_PX - OFFSETS[0] * cosine) / sine
+
+
 @njit(inline="always")
 def _median_at(img, bx, by, nx, ny, off, lo, inv, keep, lut, w, buf):  # type: ignore[no-untyped-def]
     """The median over the kept points of the profile at ``off`` px, levels normalised."""
@@ -97,9 +119,15 @@ def stretch_offsets(img: np.ndarray, v: np.ndarray, lut: np.ndarray, a0: float, 
         nx, ny = ty, -tx
         if nx * (0.5 * (px_ + qx) - cx) + ny * (0.5 * (py_ + qy) - cy) < 0:
             nx, ny = -nx, -ny
-        count = min(max_points, max(int((a1 - a0) * length), 1))
+        # clear of the vertices by as much as the inside level's offset needs: next to a
+        # sharp vertex (a steep view) the other edge is within 4 px and that level is not ink
+        start = max(a0 * length, _clearance(v, k))
+        end = min(a1 * length, length - _clearance(v, (k + 1) % 4))
+        if end - start < 2.0:
+            continue
+        count = min(max_points, max(int(end - start), 1))
         for i in range(count):
-            a = length * (a0 + (a1 - a0) * (i + 0.5) / count)
+            a = start + (end - start) * (i + 0.5) / count
             bx[i], by[i] = px_ + a * tx, py_ + a * ty
             lo[i] = _bilinear(img, bx[i] + OFFSETS[-1] * nx, by[i] + OFFSETS[-1] * ny, lut, w)
             span[i] = _bilinear(img, bx[i] + OFFSETS[0] * nx, by[i] + OFFSETS[0] * ny, lut,
