@@ -107,6 +107,13 @@ class ExtractorParams(BaseModel):
                                   "the marker is too small for the first (25-40 px markers)")
     small_min_points_per_edge: int = Field(
         default=3, ge=2, description="min_points_per_edge on the small markers' second try")
+    small_window: int = Field(
+        default=3, ge=2, le=12, description="window on the second try of a marker whose blob "
+        "is under small_window_area_px: a narrower footprint at its short chords")
+    small_window_area_px: float = Field(
+        default=800.0, gt=0, description="a blob smaller than this (px², about 40 x 40 px "
+        "across) is tried again with small_window (larger ones keep window: a highlight's "
+        "blob is small too, and its edges are read better with the wider one)")
     small_min_area_px: float = Field(
         default=120.0, gt=0, description="min_area_px on the small markers' second try (px²)")
     min_angle_deg: float = Field(default=25.0, gt=0, lt=90,
@@ -324,6 +331,9 @@ class RhombusExtractor:
                                                       model, prm)
         if status in measure.FEW:  # a small marker?
             prm = prm_small
+            if stats[measure.AREA] < p.small_window_area_px:  # short chords: a narrow window
+                prm = prm_small.copy()
+                prm[measure.WINDOW] = min(p.window, p.small_window)
             status, stats, v, cov, u, d = measure.measure(image, seed[0], seed[1], seed[2],
                                                           lut, model, prm)
         if status != measure.FOUND:
