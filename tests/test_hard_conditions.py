@@ -314,6 +314,31 @@ def test_a_glossy_prints_highlight_is_walked_through_and_never_wrong():
     _within_reported(dets)
 
 
+def test_a_clipped_core_over_the_markers_middle_leaves_its_inside_level_to_other_rows():
+    """Where a glossy print's clipped core covers the middle row of every column, the
+    marker's inside level is read a quarter of each run from its ends ("marker contrast too
+    low (0 grey levels)" before)."""
+    from services.vertex_extractor.colour import ColourModel, is_marker
+    cm = ColourModel()
+    views = list(hard_views("specular highlight, clipped", 7, seed=5))
+    for k in (0, 6):
+        r = views[k].rendered
+        (lx, ly), (tx, ty), (rx, ry), (bx, by) = r.vertices_px
+        middles = []
+        for x in range(int(np.ceil(lx)) + 2, int(rx) - 1):  # columns with an 8 px run or more
+            top = ly + (x - lx) * (ty - ly) / (tx - lx) if x <= tx else \
+                ty + (x - tx) * (ry - ty) / (rx - tx)
+            bottom = ly + (x - lx) * (by - ly) / (bx - lx) if x <= bx else \
+                by + (x - bx) * (ry - by) / (rx - bx)
+            if bottom - top >= 8:
+                middles.append(is_marker(r.image, int((top + bottom) / 2), x, cm.lut, cm.vector))
+        assert len(middles) > 30 and not any(middles), k  # the core over every middle
+        det = RhombusExtractor().extract(r.image)
+        assert det.found, (k, det.reason)
+        assert np.linalg.norm(det.vertices_px - r.vertices_px, axis=1).max() < 1.5, k
+        _within_reported([(det, r)])
+
+
 def test_the_halo_is_the_marker_plus_white_but_a_blurred_fringe_over_grey_is_not():
     from services.vertex_extractor.colour import ColourModel, chroma_amount, is_lit_marker
     cm = ColourModel()

@@ -173,8 +173,8 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
         x = a + i * dx
         if top[x] < gap or bottom[x] + gap > H - 1:
             return BORDER, area, n, 0.0, empty, empty, box
-        y = (top[x] + bottom[x]) // 2
-        if is_marker(img, y, x, lut, m):  # not an occluder across the run
+        y = _inside_row(img, x, top[x], bottom[x], lut, m)
+        if y >= 0:  # not an occluder or a highlight across the run
             counted += 1
             for c in range(3):
                 inside[c] += lut[img[y, x, c]]
@@ -275,6 +275,22 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
 
 
 @njit(inline="always")
+def _inside_row(img, x, top, bottom, lut, m):  # type: ignore[no-untyped-def]
+    """A row of column x's run [top, bottom] whose pixel is plain marker: its middle, else its
+    quarter or three-quarter row (a glossy print's clipped core over the middle); -1: none."""
+    mid = (top + bottom) // 2
+    if is_marker(img, mid, x, lut, m):
+        return mid
+    quarter = (bottom - top) // 4
+    if quarter >= 2:
+        if is_marker(img, top + quarter, x, lut, m):
+            return top + quarter
+        if is_marker(img, bottom - quarter, x, lut, m):
+            return bottom - quarter
+    return -1
+
+
+@njit(inline="always")
 def _levels(img, a, n, dx, top, bottom, gap, lut, w, m):  # type: ignore[no-untyped-def]
     """(inside, outside) score levels of the whole marker: the median at the columns' centres
     (marker pixels only) and the median just beyond the edge windows; and the inside's pixel
@@ -284,8 +300,8 @@ def _levels(img, a, n, dx, top, bottom, gap, lut, w, m):  # type: ignore[no-unty
     outside = np.empty(2 * n)
     for i in range(n):
         x = a + i * dx
-        y = (top[x] + bottom[x]) // 2
-        if is_marker(img, y, x, lut, m):
+        y = _inside_row(img, x, top[x], bottom[x], lut, m)
+        if y >= 0:
             inside[k] = score(img, y, x, lut, w)
             k += 1
         outside[2 * i] = score(img, top[x] - gap, x, lut, w)
