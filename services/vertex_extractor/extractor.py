@@ -59,6 +59,9 @@ Where we depart from the paper, keeping its spirit:
   blur along the columns or a shadow's boundary inside one scan's window moves that scan's
   edges; the vertices are the two scans' mean, their
   disagreement grows the covariance, and a large one is refused.
+- The covariance reported (``covariance.py``) is that one scaled with the marker's size (the
+  errors that matter do not average out along an edge) plus what the profile says about a
+  misplaced edge: honest (NEES about 2) on small and large markers, under blur and shadows.
 
 Limits: one marker per frame (two similar blobs on a cold search are refused as ambiguous);
 without intrinsics the shape test cannot tell the marker from a rhombus of another shape
@@ -79,7 +82,7 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.core.camera import CameraModel
 from services.core.mounts import Geometry
-from services.vertex_extractor import lines, measure, paper, profile, scan, shape
+from services.vertex_extractor import covariance, lines, measure, paper, profile, scan, shape
 from services.vertex_extractor.colour import ColourModel, grid_mask
 from services.vertex_extractor.shape import ShapeParams, ShapeTest
 
@@ -351,8 +354,8 @@ class RhombusExtractor:
                 " edge is not a clean step: its profile crosses half way "
                 f"{offsets[k]:+.1f}"
                 " px from the fitted line (a shadow's boundary along it?)", tracked)
-        k, deviation = profile.odd_vertex(profile.vertex_steps(image, v, lut, model),
-                                          p.max_vertex_step_px)
+        steps = profile.vertex_steps(image, v, lut, model)
+        k, deviation = profile.odd_vertex(steps, p.max_vertex_step_px)
         if k >= 0:
             self._seed = None
             return _miss(
@@ -363,7 +366,8 @@ class RhombusExtractor:
         self._seed = (int(stats[measure.SEED_X]), int(stats[measure.SEED_Y]),
                       int(stats[measure.SEED_RADIUS]))
         return Detection(True, v, float(stats[measure.AREA_RATIO]),
-                         float(stats[measure.RESIDUAL]), "", tracked, (u, d), cov)
+                         float(stats[measure.RESIDUAL]), "", tracked, (u, d),
+                         covariance.reported(v, cov, offsets, steps))
 
     def _paper(self, image: np.ndarray, seed: tuple[int, int, int], tracked: bool
                ) -> Detection:
@@ -416,8 +420,8 @@ COV_SCALE = 5.0
 COV_FLOOR_PX2 = 0.0004
 #: the covariance of the mean of the column and the row scan's vertices: the scans' mean
 #: covariance scaled (their errors are partly independent) plus the square of their
-#: disagreement scaled, so that the squared errors normalised by it average 2 on clean webcam
-#: renders and stay near it under blur and shadows (``tests/test_hard_conditions.py``)
+#: disagreement scaled; the shape test weighs the vertices by it, and ``covariance.reported``
+#: makes it the one reported (``tests/test_hard_conditions.py``)
 MEAN_COV_SCALE = 0.4
 #: check the column scan against a row scan of the same marker (about twice the time; blur
 #: and shadows bias one of them) and refuse a vertex disagreement beyond this (px)
@@ -507,3 +511,4 @@ def warm_up(params: ExtractorParams | None = None) -> None:
         extractor.extract(frame)  # tracked
     shape.warm_up()
     profile.warm_up()
+    covariance.warm_up()
