@@ -17,7 +17,7 @@ import zenoh
 
 from services.runtime.session import ZenohSettings, zenoh_config
 from services.tools import partition
-from tests.conftest import ROOT
+from tests.conftest import ROOT, free_port
 
 _TOKEN_HOLDER = """
 import sys, time, zenoh
@@ -79,6 +79,28 @@ def test_the_zenoh_table_sets_the_lease_and_keep_alive():
         assert dep.zenoh.mode == "client", name  # through the router only (see departures)
 
 
+_LOGGED_SESSION = """
+import sys, zenoh
+from services.runtime.session import ZenohSettings, open_session, zenoh_logging
+zenoh_logging()
+with open_session(ZenohSettings(mode="peer", listen=[sys.argv[1]], multicast_scouting=False)):
+    pass
+"""
+
+
+@pytest.mark.parametrize("rust_log", ["zenoh::net::runtime::orchestrator=info", ""])
+def test_rust_log_shows_zenohs_own_log(rust_log: str):
+    """A user watching a reconnection sets RUST_LOG (docs/deployments/robot-laptop.md);
+    without it Zenoh says nothing."""
+    env = {k: v for k, v in os.environ.items() if k != "RUST_LOG"}
+    env.update(PYTHONPATH=str(ROOT), **({"RUST_LOG": rust_log} if rust_log else {}))
+    done = subprocess.run([sys.executable, "-c", _LOGGED_SESSION,
+                           f"tcp/127.0.0.1:{free_port()}"], capture_output=True, text=True,
+                          cwd=ROOT, env=env, timeout=60)
+    assert done.returncode == 0, done.stderr
+    assert ("Zenoh can be reached at" in done.stdout) == bool(rust_log), done.stdout
+
+
 WHY_NOT = partition.unavailable()
 
 
@@ -95,8 +117,10 @@ def test_a_real_link_cut_and_flapped_while_the_humanoid_walks(tmp_path: Path, wa
     assert not report.stale_motion  # no motion command older than 0.5 s reached it
     assert len(report.stop_after_cut_s) >= 1 and max(report.stop_after_cut_s) < 1.0
     assert len(report.fresh_pose_after_heal_s) == len(report.cuts)
-    # a reconnection attempt is given up after 2 s (open_timeout_s) and retried within 1 s
-    assert max(report.fresh_pose_after_heal_s) < 3.5
+    # a reconnection attempt is given up after 2 s (open_timeout_s) and retried within 1 s:
+    # poses are back about 1-2 s after a heal, unless the router's close of the dropped link
+    # lingers (zenoh#1101: 7.3 s seen after a 5 s cut, in about one run of eight under load)
+    assert max(report.fresh_pose_after_heal_s) < partition.FRESH_BOUND_S
     assert report.completed, (tmp_path / "laptop.log").read_text()[-3000:]
     assert report.restarts == 0
     assert not report.moved_late_m, report.moved_late_m

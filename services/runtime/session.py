@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 from collections.abc import Iterator
 from pathlib import Path
 
@@ -66,6 +67,13 @@ class Limits(BaseModel):
                                 description="larger JSON messages are refused unparsed")
     max_frame_side: int = Field(default=4096, ge=16, le=16384,
                                 description="frames wider or taller (px) are refused")
+
+
+def zenoh_logging() -> None:
+    """Zenoh's own log on stdout when ``RUST_LOG`` is set (e.g. ``RUST_LOG=zenoh=debug``:
+    links opened, leases expired, reconnection attempts); silent otherwise."""
+    if os.environ.get("RUST_LOG"):
+        zenoh.init_log_from_env_or("error")
 
 
 def zenoh_config(settings: ZenohSettings) -> zenoh.Config:

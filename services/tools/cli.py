@@ -13,7 +13,7 @@ from pathlib import Path
 
 from schemas import Command, Message
 from services.data import DEFAULT_DEPLOYMENT
-from services.runtime.session import LOCAL_ENDPOINT, ZenohSettings
+from services.runtime.session import LOCAL_ENDPOINT, ZenohSettings, zenoh_logging
 
 
 def _version() -> str:
@@ -411,6 +411,7 @@ def use_fast_event_loop() -> None:
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     use_fast_event_loop()
+    zenoh_logging()
     logging.basicConfig(level=getattr(logging, str(args.log_level).upper(), logging.INFO),
                         format="%(asctime)s %(name)s %(levelname)s %(message)s",
                         datefmt="%H:%M:%S")
