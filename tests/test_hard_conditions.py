@@ -13,15 +13,16 @@ from services.sim.hazards import Hazards
 from services.sim.render import RenderStyle, render_view
 from services.sim.scenes import HARD_CONDITIONS, NO_MARKER, hard_views, marker_pose
 from services.sim.webcam import WebcamParams
-from services.vertex_extractor.extractor import RhombusExtractor
+from services.vertex_extractor.extractor import ExtractorParams, RhombusExtractor
 
 pytestmark = pytest.mark.skipif(not textures.have_photos(),
                                 reason="scikit-image (dev extra) ships the photographs")
 
 
-def _run(condition: str, n: int, seed: int = 3) -> tuple[list[np.ndarray], int, int, list]:
+def _run(condition: str, n: int, seed: int = 3, params: ExtractorParams | None = None
+         ) -> tuple[list[np.ndarray], int, int, list]:
     """(per-frame vertex errors of the found ones, wrong (> 2 px), frames, detections)."""
-    ex = RhombusExtractor()
+    ex = RhombusExtractor(params)
     errors, wrong, total, dets = [], 0, 0, []
     for v in hard_views(condition, n, seed=seed):
         r = v.rendered
@@ -211,6 +212,33 @@ def test_a_small_markers_second_try_reads_its_short_chords_with_a_narrow_window(
         errors, w, t, _ = _run("small: 25-40 px across", 75, seed=seed)
         found, wrong, total = found + len(errors), wrong + w, total + t
     assert wrong == 0 and found >= total - 5, (wrong, found, total)
+
+
+@pytest.mark.slow  # many renders
+def test_a_shadowed_markers_second_try_reads_its_edges_with_a_narrow_window():
+    """A cast shadow's boundary a few px inside an edge falls in the 5 px window of one scan
+    and moves that edge: the column and row scans disagree, or the vertices come out too
+    uncertain, and the marker was refused. Tried again with a 3 px window (the same tests),
+    more of them are found, and none wrong: on 900 views a condition, hard shadows 91.1 ->
+    94 %, soft 92.8 -> 95 % found (docs/measured.md)."""
+    shadows = ("hard cast shadow (x0.35)", "soft cast shadow (x0.35, 8-40 px)")
+    views = [v.rendered for c in shadows for v in hard_views(c, 80, seed=5)
+             if v.rendered.marker_visible]
+    off = ExtractorParams(narrow_window=ExtractorParams().window)  # no second try
+    counts = {}
+    for name, params in (("off", off), ("on", None)):
+        ex, found, wrong = RhombusExtractor(params), 0, 0
+        for r in views:
+            ex.reset()
+            det = ex.extract(r.image)
+            if det.found and det.vertices_px is not None and r.vertices_px is not None:
+                found += 1
+                wrong += bool(np.linalg.norm(det.vertices_px - r.vertices_px, axis=1).max() > 2)
+        counts[name] = (found, wrong)
+    print(f"\nshadowed views found, wrong: one window {counts['off']}, "
+          f"with the narrow second try {counts['on']}")
+    assert counts["on"][0] >= counts["off"][0] + 3, counts
+    assert counts["on"][1] <= counts["off"][1], counts
 
 
 def _nees(dets: list) -> tuple[np.ndarray, np.ndarray]:

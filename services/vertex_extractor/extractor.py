@@ -49,6 +49,9 @@ Where we depart from the paper, keeping its spirit:
   visible vertex, each edge must step where the others do (``profile.vertex_steps``: a
   shadow's boundary near a vertex bends the points there and the lines miss the vertex).
   Anything else is ``found = False`` with a reason.
+- A marker refused because its column and row scans disagree or its vertices are too
+  uncertain is tried once more with a 3 px window (``narrow_window``) under the same tests:
+  a shadow's boundary a few px inside an edge falls in the 5 px window and moves the edge.
 - Each detection carries its per-vertex covariance (px²): the line fits' offset and angle
   variances propagated through the intersections, scaled for the points' correlation
   (``COV_SCALE``); one whose largest sigma exceeds ``max_vertex_sigma_px`` is refused.
@@ -117,6 +120,10 @@ class ExtractorParams(BaseModel):
         default=800.0, gt=0, description="a blob smaller than this (px², about 40 x 40 px "
         "across) is tried again with small_window (larger ones keep window: a highlight's "
         "blob is small too, and its edges are read better with the wider one)")
+    narrow_window: int = Field(
+        default=3, ge=2, le=12, description="window on the second try of a marker whose "
+        "column and row scans disagree or whose vertices are too uncertain: a shadow's "
+        "boundary a few px inside an edge falls in the wider window and moves the edge")
     small_min_area_px: float = Field(
         default=120.0, gt=0, description="min_area_px on the small markers' second try (px²)")
     min_angle_deg: float = Field(default=25.0, gt=0, lt=90,
@@ -339,6 +346,12 @@ class RhombusExtractor:
                 prm[measure.WINDOW] = min(p.window, p.small_window)
             status, stats, v, cov, u, d = measure.measure(image, seed[0], seed[1], seed[2],
                                                           lut, model, prm)
+        if status in measure.BIASED and prm[measure.WINDOW] > p.narrow_window:
+            narrow = prm.copy()  # the same tests, a narrower window; else the first reason
+            narrow[measure.WINDOW] = p.narrow_window
+            again = measure.measure(image, seed[0], seed[1], seed[2], lut, model, narrow)
+            if again[0] == measure.FOUND:
+                status, stats, v, cov, u, d = again
         if status != measure.FOUND:
             self._seed = None
             return _miss(_reason(status, stats, prm), tracked)

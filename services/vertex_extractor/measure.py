@@ -26,6 +26,9 @@ FIT, VERDICT, SHAPE, UNCERTAIN, DISAGREE = 10, 20, 30, 31, 32
 #: statuses of a marker that may be too small for the parameters (a second try, or the
 #: row scan for a tall narrow one)
 FEW = (SMALL_AREA, FEW_COLUMNS, FEW_POINTS, FIT + lines.TOO_FEW_POINTS)
+#: refusals that a shadow's boundary inside the sub-pixel window can cause (tried again with
+#: a narrower one, ``ExtractorParams.narrow_window``)
+BIASED = (DISAGREE, UNCERTAIN)
 #: a marker this many times taller than wide whose column lines do not fit it is scanned along
 #: its rows instead (a steep view: its near-vertical edges cross few columns)
 TALL = 1.3
