@@ -49,9 +49,11 @@ Where we depart from the paper, keeping its spirit:
   visible vertex, each edge must step where the others do (``profile.vertex_steps``: a
   shadow's boundary near a vertex bends the points there and the lines miss the vertex).
   Anything else is ``found = False`` with a reason.
-- A marker refused because its column and row scans disagree or its vertices are too
-  uncertain is tried once more with a 3 px window (``narrow_window``) under the same tests:
-  a shadow's boundary a few px inside an edge falls in the 5 px window and moves the edge.
+- A marker refused because its column and row scans disagree or an edge is not one step is
+  tried once more with a 3 px window (``narrow_window``) under the same tests: a shadow's
+  boundary a few px inside an edge falls in the 5 px window and moves the edge. Not one
+  whose vertices are too uncertain or off their edges' steps: the narrower window left those
+  as far off and reported them surer.
 - Each detection carries its per-vertex covariance (px²): the line fits' offset and angle
   variances propagated through the intersections, scaled for the points' correlation
   (``COV_SCALE``); one whose largest sigma exceeds ``max_vertex_sigma_px`` is refused.
@@ -122,7 +124,7 @@ class ExtractorParams(BaseModel):
         "blob is small too, and its edges are read better with the wider one)")
     narrow_window: int = Field(
         default=3, ge=2, le=12, description="window on the second try of a marker whose "
-        "column and row scans disagree or whose vertices are too uncertain: a shadow's "
+        "column and row scans disagree or one of whose edges is not one step: a shadow's "
         "boundary a few px inside an edge falls in the wider window and moves the edge")
     small_min_area_px: float = Field(
         default=120.0, gt=0, description="min_area_px on the small markers' second try (px²)")
@@ -327,9 +329,10 @@ class RhombusExtractor:
 
     def _extract_from(self, image: np.ndarray, seed: tuple[int, int, int],
                       tracked: bool) -> Detection:
-        """The marker at or near ``seed`` (x, y, search radius px), measured and judged in one
-        compiled call (``measure.measure``); a marker too small for the parameters is tried
-        again with the small markers' ones."""
+        """The marker at or near ``seed`` (x, y, search radius px), measured in one compiled
+        call (``measure.measure``) and judged; a marker too small for the parameters is tried
+        again with the small markers' ones, one whose edges a shadow's boundary may have moved
+        with a narrower window (the first refusal stands when that fails too)."""
         p = self.params
         lut, model = p.colour.lut, p.colour.vector
         test = self._shape if self._shape is not None and self._shape.size == (
@@ -337,28 +340,37 @@ class RhombusExtractor:
         if p.method == "paper":
             return self._paper(image, seed, tracked)
         prm, prm_small = self._loose if test is not None else (self._prm, self._prm_small)
-        status, stats, v, cov, u, d = measure.measure(image, seed[0], seed[1], seed[2], lut,
-                                                      model, prm)
-        if status in measure.FEW:  # a small marker?
+        measured = measure.measure(image, *seed, lut, model, prm)
+        if measured[0] in measure.FEW:  # a small marker?
             prm = prm_small
-            if stats[measure.AREA] < p.small_window_area_px:  # short chords: a narrow window
+            if measured[1][measure.AREA] < p.small_window_area_px:  # short chords: narrow
                 prm = prm_small.copy()
                 prm[measure.WINDOW] = min(p.window, p.small_window)
-            status, stats, v, cov, u, d = measure.measure(image, seed[0], seed[1], seed[2],
-                                                          lut, model, prm)
-        if status in measure.BIASED and prm[measure.WINDOW] > p.narrow_window:
-            narrow = prm.copy()  # the same tests, a narrower window; else the first reason
+            measured = measure.measure(image, *seed, lut, model, prm)
+        det, biased = self._judge(image, measured, prm, test, tracked)
+        if biased and prm[measure.WINDOW] > p.narrow_window:
+            narrow = prm.copy()
             narrow[measure.WINDOW] = p.narrow_window
-            again = measure.measure(image, seed[0], seed[1], seed[2], lut, model, narrow)
-            if again[0] == measure.FOUND:
-                status, stats, v, cov, u, d = again
+            again, _ = self._judge(image, measure.measure(image, *seed, lut, model, narrow),
+                                   narrow, test, tracked)
+            if again.found:
+                return again
+        return det
+
+    def _judge(self, image: np.ndarray, measured: tuple, prm: np.ndarray,
+               test: ShapeTest | None, tracked: bool) -> tuple[Detection, bool]:
+        """The detection from one measurement, after the shape and profile tests (the next
+        frame's seed kept when found), and whether a refusal is one that a shadow's boundary
+        inside the sub-pixel window can cause (``measure.BIASED``, an edge off its step)."""
+        p = self.params
+        status, stats, v, cov, u, d = measured
         if status != measure.FOUND:
             self._seed = None
-            return _miss(_reason(status, stats, prm), tracked)
+            return _miss(_reason(status, stats, prm), tracked), status in measure.BIASED
         if test is not None and (reason := test.refusal(v, cov)):
             self._seed = None
-            return _miss(reason, tracked)
-        offsets = profile.step_offsets(image, v, lut)
+            return _miss(reason, tracked), False
+        offsets = profile.step_offsets(image, v, p.colour.lut)
         k = profile.odd_edge(offsets, p.max_step_offset_px, p.max_step_spread_px)
         if k >= 0:
             self._seed = None
@@ -366,21 +378,21 @@ class RhombusExtractor:
                 f"the {_EDGE_NAMES[k]}"
                 " edge is not a clean step: its profile crosses half way "
                 f"{offsets[k]:+.1f}"
-                " px from the fitted line (a shadow's boundary along it?)", tracked)
-        steps = profile.vertex_steps(image, v, lut, model)
+                " px from the fitted line (a shadow's boundary along it?)", tracked), True
+        steps = profile.vertex_steps(image, v, p.colour.lut, p.colour.vector)
         k, deviation = profile.odd_vertex(steps, p.max_vertex_step_px)
-        if k >= 0:
+        if k >= 0:  # (not tried again: a narrower window leaves the vertex as far off)
             self._seed = None
             return _miss(
                 f"the {_VERTEX_NAMES[k]}"
                 " vertex is off its edges' steps: next to it an edge's profile crosses half way "
                 f"{deviation:.1f}"
-                " px off the others (a shadow's boundary near the vertex?)", tracked)
+                " px off the others (a shadow's boundary near the vertex?)", tracked), False
         self._seed = (int(stats[measure.SEED_X]), int(stats[measure.SEED_Y]),
                       int(stats[measure.SEED_RADIUS]))
         return Detection(True, v, float(stats[measure.AREA_RATIO]),
                          float(stats[measure.RESIDUAL]), "", tracked, (u, d),
-                         covariance.reported(v, cov, offsets, steps))
+                         covariance.reported(v, cov, offsets, steps)), False
 
     def _paper(self, image: np.ndarray, seed: tuple[int, int, int], tracked: bool
                ) -> Detection:
