@@ -38,10 +38,13 @@ TALL = 1.3
 # the parameter vector (``params_vector``)
 (MIN_LEN, DX, WINDOW, EDGE, OUTER, MIN_AREA, MIN_POINTS, MAX_OUTSIDE_SHARE, COV_SCALE,
  COV_FLOOR, MIN_ANGLE, MAX_RESIDUAL, DIAGONAL_RATIO, MAX_OFF_NORMAL, MAX_ROLL, MAX_PITCH,
- MAX_SIGMA, CROSS_CHECK, MAX_GAP, MEAN_COV_SCALE, GAP_COV_SCALE, N_PARAMS) = range(22)
+ MAX_SIGMA, CROSS_CHECK, MAX_GAP, MEAN_COV_SCALE, GAP_COV_SCALE, FUSE, N_PARAMS) = range(23)
 # the figures returned beside the status
 (AREA, COLUMNS, CONTRAST, RESIDUAL, QUAD_AREA, ANGLE_MIN, ANGLE_MAX, TILT, ROLL, PITCH,
- SIGMA, GAP, AREA_RATIO, SEED_X, SEED_Y, SEED_RADIUS, N_STATS) = range(17)
+ SIGMA, GAP, AREA_RATIO, SEED_X, SEED_Y, SEED_RADIUS, CHECKED, COLUMNS_UNSURE,
+ N_STATS) = range(19)
+# CHECKED: 1 where the row scan agreed with the column scan; COLUMNS_UNSURE: 1 where the
+# column scan alone was too uncertain and the rows were asked (``fuse``)
 
 
 @njit(inline="always")
@@ -77,6 +80,36 @@ def cross_check(v: np.ndarray, cov: np.ndarray, v_rows: np.ndarray, cov_rows: np
 
 
 @njit()
+def fuse(v: np.ndarray, cov: np.ndarray, v_rows: np.ndarray, cov_rows: np.ndarray,
+         mean_cov_scale: float, gap_cov_scale: float) -> tuple[float, float]:
+    """Like ``cross_check``, but each vertex the two scans' mean weighted by the inverse of
+    each one's variance (trace of its covariance: a scalar weight keeps the mean between
+    the two, where two thin ellipses' matrix weights could carry it far off); returns the
+    largest disagreement and the largest sigma of the result (px)."""
+    worst = 0.0
+    top = 0.0
+    for i in range(4):
+        gx, gy = v[i, 0] - v_rows[i, 0], v[i, 1] - v_rows[i, 1]
+        gap = math.sqrt(gx * gx + gy * gy)
+        worst = max(worst, gap)
+        a = 1.0 / (cov[i, 0, 0] + cov[i, 1, 1])
+        b = 1.0 / (cov_rows[i, 0, 0] + cov_rows[i, 1, 1])
+        wa, wb = a / (a + b), b / (a + b)
+        v[i, 0] = wa * v[i, 0] + wb * v_rows[i, 0]
+        v[i, 1] = wa * v[i, 1] + wb * v_rows[i, 1]
+        grow = gap_cov_scale * gap * gap
+        for r in range(2):  # (equal weights: cross_check's mean_cov_scale * the mean one)
+            for c in range(2):
+                cov[i, r, c] = 2.0 * mean_cov_scale * (
+                    wa * wa * cov[i, r, c] + wb * wb * cov_rows[i, r, c]) + (
+                    grow if r == c else 0.0)
+        half = 0.5 * (cov[i, 0, 0] + cov[i, 1, 1])
+        det = cov[i, 0, 0] * cov[i, 1, 1] - cov[i, 0, 1] * cov[i, 1, 0]
+        top = max(top, math.sqrt(half + math.sqrt(max(half * half - det, 0.0))))
+    return worst, top
+
+
+@njit()
 def _judge(img, status, area, n, contrast, u, d, width, height, prm, ox, oy,  # type: ignore[no-untyped-def]
            stats, v_out, cov_out):
     """The scan's result tested as the marker: its status, and the finite edge points (in
@@ -105,11 +138,14 @@ def _judge(img, status, area, n, contrast, u, d, width, height, prm, ox, oy,  # 
         return found, u_out, d_out
     u2, d2, cx2, cy2 = lines.finite_points(u[keep_u], d[keep_d])
     stats_again = stats.copy()
+    v_again, cov_again = v_out.copy(), cov_out.copy()
     again, u_again, d_again = _tests(u2, d2, cx2, cy2, area, width, height, prm, ox, oy,
-                                     stats_again, v_out, cov_out)
+                                     stats_again, v_again, cov_again)
     if again != FOUND:
         return found, u_out, d_out
     stats[:] = stats_again
+    v_out[:] = v_again
+    cov_out[:] = cov_again
     return again, u_again, d_again
 
 
@@ -150,11 +186,11 @@ def _tests(u, d, cx, cy, area, width, height, prm, ox, oy,  # type: ignore[no-un
     stats[TILT], stats[ROLL], stats[PITCH] = tilt, roll, pitch
     if tilt > prm[MAX_OFF_NORMAL] or roll > prm[MAX_ROLL] or pitch > prm[MAX_PITCH]:
         return SHAPE, u, d
-    if sigma > prm[MAX_SIGMA]:
-        return UNCERTAIN, u, d
     stats[AREA_RATIO] = min(quad_area / (width * height), 1.0)
     v_out[:] = v
     cov_out[:] = cov
+    if sigma > prm[MAX_SIGMA]:
+        return UNCERTAIN, u, d
     return FOUND, u, d
 
 
@@ -184,7 +220,8 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
     are too few (a small one) or a tall one whose column lines do not fit it (``fit_failed``:
     a steep view's near-vertical edges crossed at a glancing angle, an arm across them);
     otherwise as a cross-check (``cross_check``; refused when
-    the scans disagree by more than ``prm[MAX_GAP]`` px).
+    the scans disagree by more than ``prm[MAX_GAP]`` px). A column scan too uncertain alone
+    is combined with an agreeing row scan (``fuse``, where ``prm[FUSE]``).
 
     Returns (status, stats, vertices (4, 2) px, covariance (4, 2, 2) px², U and D edge
     points (n, 2) px); when found, the next frame's seed is in ``stats``.
@@ -205,6 +242,22 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
         int(prm[EDGE]), outer)
     found, u, d = _judge(img, status, area, n, contrast, u, d, W, H, prm, -1, -1, stats, v,
                          cov)
+    if found == UNCERTAIN and prm[FUSE] > 0:  # the rows may know the vertex better
+        stats[COLUMNS_UNSURE] = 1.0
+        v_rows = np.zeros((4, 2))
+        cov_rows = np.zeros((4, 2, 2))
+        rows, _, _ = _rows(img, sx, sy, box, lut, m, prm, np.zeros(N_STATS), v_rows, cov_rows)
+        if rows == FOUND or rows == UNCERTAIN:
+            vf, cf = v.copy(), cov.copy()
+            stats[GAP], sigma = fuse(vf, cf, v_rows, cov_rows, prm[MEAN_COV_SCALE],
+                                     prm[GAP_COV_SCALE])
+            if stats[GAP] > prm[MAX_GAP]:
+                return DISAGREE, stats, v, cov, u, d
+            if sigma <= prm[MAX_SIGMA]:
+                stats[SIGMA], stats[CHECKED] = sigma, 1.0
+                _seed(vf, stats)
+                return FOUND, stats, vf, cf, u, d
+        return found, stats, v, cov, u, d
     if found != FOUND:
         few = found == SMALL_AREA or found == FEW_COLUMNS or found == FEW_POINTS or \
             found == FIT + lines.TOO_FEW_POINTS
@@ -229,6 +282,7 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
             if stats[GAP] > prm[MAX_GAP]:
                 return DISAGREE, stats, v, cov, u, d
             v, cov = vc, cc
+            stats[CHECKED] = 1.0
     _seed(v, stats)
     return FOUND, stats, v, cov, u, d
 
