@@ -283,6 +283,53 @@ def test_a_vertex_under_a_highlight_or_shadow_is_found_from_both_scans():
     assert counts["on"][1] <= counts["off"][1], counts
 
 
+def test_the_joint_fit_takes_each_edge_from_both_scans_points():
+    """lines.fit_joint: the column scan's upper and lower chains and the row scan's left and
+    right ones, each point given to its edge by the vertices it is split at; a top vertex
+    hidden (no point within 12 px of it on any chain) comes from the two lines, and a split
+    started 3 px off settles where the lines meet."""
+    from services.vertex_extractor import lines
+    v = np.array([[20.0, 60.0], [52.0, 12.0], [84.0, 60.0], [52.0, 108.0]])
+    rng = np.random.default_rng(3)
+
+    def along(a: np.ndarray, b: np.ndarray, n: int) -> np.ndarray:
+        t = np.linspace(0.0, 1.0, n)[:, None]
+        pts = a + t * (b - a)
+        far = np.linalg.norm(pts - v[1], axis=1) > 12.0  # the top vertex hidden
+        return pts[far] + rng.normal(0.0, 0.05, pts[far].shape)
+
+    upper = np.vstack([along(v[0], v[1], 30), along(v[1], v[2], 30)])  # by x
+    lower = np.vstack([along(v[0], v[3], 30), along(v[3], v[2], 30)])
+    left = np.vstack([along(v[1], v[0], 45), along(v[0], v[3], 45)])  # by y
+    right = np.vstack([along(v[1], v[2], 45), along(v[2], v[3], 45)])
+    start = v + np.array([[0.0, 3.0], [3.0, 0.0], [0.0, -3.0], [-3.0, 0.0]])
+    status, found, residual, cov, sigma = lines.fit_joint(
+        upper, lower, left, right, start, 2.0, 4, 52.0, 60.0, 0.2, 1.0, 0.0)
+    assert status == lines.FIT_OK
+    assert np.abs(found - v).max() < 0.15, found - v
+    assert residual < 0.1 and sigma < 0.2 and cov.shape == (4, 2, 2)
+    status, *_ = lines.fit_joint(upper[:2], lower, left[:1], right, start, 2.0, 4, 52.0,
+                                 60.0, 0.2, 1.0, 0.0)
+    assert status == lines.TOO_FEW_POINTS  # the upper left edge: 2 + 1 points (< 4)
+
+
+def test_a_highlight_over_a_vertex_is_found_from_both_scans_points_at_once():
+    """Under a highlight the two scans' vertices, even weighted, were still too uncertain
+    for 42 of 900 views; fitted to both scans' points at once, an edge has more points
+    further apart (``joint_fit``): on these 120 views 86 -> 90 found, 2 wrong either way
+    (900 views: 70.4 -> 72.6 %, the same 5 wrong)."""
+    views = [v.rendered for v in hard_views("specular highlight, clipped", 120, seed=6)
+             if v.rendered.marker_visible]
+    counts = {}
+    for name, params in (("off", ExtractorParams(joint_fit=False)), ("on", None)):
+        errors, wrong, _, _ = _extract_all(views, params)
+        counts[name] = (len(errors), wrong)
+    print(f"\nfound, wrong: the scans' vertices weighted {counts['off']}, "
+          f"the joint fit {counts['on']}")
+    assert counts["on"][0] >= counts["off"][0] + 2, counts
+    assert counts["on"][1] <= counts["off"][1], counts
+
+
 def test_an_uncertain_column_scan_is_not_found_on_the_narrow_second_try_alone():
     """A highlight over the top vertex: the column scan is too uncertain, the rows disagree
     with it (a refusal the narrow window's second try is for), and the narrow window's

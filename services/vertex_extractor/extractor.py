@@ -52,7 +52,11 @@ Where we depart from the paper, keeping its spirit:
 - A marker whose column scan alone is too uncertain (a vertex under a highlight or a
   shadow, edges crossed at a glancing angle) is scanned along its rows too; if the two
   agree, each vertex is their mean weighted by the inverse of each one's variance
-  (``measure.fuse``, ``fuse_scans``), and the result's uncertainty is judged.
+  (``measure.fuse``, ``fuse_scans``), and the result's uncertainty is judged. Where that
+  is still too uncertain and a highlight clips to white in the marker's box (it took edge
+  points away), each edge is fitted to both scans' points at once (``lines.fit_joint``,
+  ``joint_fit``: more points, further apart) and judged again; not under a shadow, whose
+  bias more points do not cure.
 - A marker refused because its column and row scans disagree or an edge is not one step is
   tried once more with a 3 px window (``narrow_window``) under the same tests: a shadow's
   boundary a few px inside an edge falls in the 5 px window and moves the edge. Not one
@@ -136,6 +140,11 @@ class ExtractorParams(BaseModel):
         default=True, description="a marker whose column scan alone is too uncertain (its "
         "edges crossed at a glancing angle, a vertex under a highlight) is measured from the "
         "column and row scans' vertices weighted by their uncertainty, if the two agree; "
+        "false: refused")
+    joint_fit: bool = Field(
+        default=True, description="where the two scans' weighted vertices are still too "
+        "uncertain and a highlight clips in the marker's box, each edge is fitted to both "
+        "scans' points at once (more points, further apart) and the result judged again; "
         "false: refused")
     small_min_area_px: float = Field(
         default=120.0, gt=0, description="min_area_px on the small markers' second try (px²)")
@@ -484,6 +493,7 @@ def _params_vector(p: ExtractorParams, diagonal_ratio: float) -> np.ndarray:
     prm[measure.CROSS_CHECK], prm[measure.MAX_GAP] = CROSS_CHECK, MAX_SCAN_DISAGREEMENT_PX
     prm[measure.MEAN_COV_SCALE], prm[measure.GAP_COV_SCALE] = MEAN_COV_SCALE, GAP_COV_SCALE
     prm[measure.FUSE] = p.fuse_scans
+    prm[measure.JOINT] = p.joint_fit
     return prm
 
 

@@ -398,6 +398,17 @@ def fit_rhombus_robust(u: np.ndarray, d: np.ndarray, min_points: int, drop: int,
             if k2 == k:
                 break
             k = k2
+    return _quad(lines, min_points, max_outside_share, cov_scale, cov_floor)
+
+
+@njit()
+def _quad(lines: np.ndarray, min_points: int, max_outside_share: float, cov_scale: float,
+          cov_floor: float) -> tuple[int, np.ndarray, float, np.ndarray, float]:
+    """The four fitted lines (rows: upper left, upper right, lower left, lower right; columns
+    as ``fit_rhombus_robust`` fills them) tested and intersected into the vertices and their
+    covariance (``fit_rhombus_robust``'s return)."""
+    v = np.zeros((4, 2))
+    cov = np.zeros((4, 2, 2))
     sq_all, count = 0.0, 0
     for i in range(4):
         if lines[i, 4] < min_points or lines[i, 4] < MIN_INLIER_SHARE * lines[i, 10]:
@@ -432,6 +443,86 @@ def fit_rhombus_robust(u: np.ndarray, d: np.ndarray, min_points: int, drop: int,
         top = 0.5 * (cxx + cyy) + math.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
         sigma_max = max(sigma_max, math.sqrt(top))
     return FIT_OK, v, math.sqrt(sq_all / max(count, 1)), cov, sigma_max
+
+
+@njit()
+def fit_joint(u: np.ndarray, d: np.ndarray, left: np.ndarray, right: np.ndarray,
+              v0: np.ndarray, drop_px: float, min_points: int, centre_x: float,
+              centre_y: float, max_outside_share: float, cov_scale: float = 1.0,
+              cov_floor: float = 0.0) -> tuple[int, np.ndarray, float, np.ndarray, float]:
+    """The four lines fitted to the column scan's upper and lower chains (u, d) and the row
+    scan's left and right ones together, all (n, 2) px in the image: each point goes to the
+    edge its chain has on its side of the vertices ``v0`` (left, top, right, bottom), those
+    within ``drop_px`` of a vertex to none, and the vertices the lines give split the chains
+    again (``fit_rhombus_robust``'s return)."""
+    v = v0.copy()
+    lines = np.zeros((4, 11))
+    status, res, cov, sigma = FIT_OK, 0.0, np.zeros((4, 2, 2)), 0.0
+    chains = (u, d, left, right)
+    for _ in range(3):
+        for line in range(4):
+            count = 0
+            for c in range(4):
+                count += _joint_count(chains[c], c, line, v, drop_px)
+            pts = np.empty((count, 2))
+            k = 0
+            for c in range(4):
+                k = _joint_fill(chains[c], c, line, v, drop_px, pts, k)
+            if count < min_points:
+                return TOO_FEW_POINTS, v, 0.0, cov, 0.0
+            nx, ny, dd, sg, cnt, cx, cy, spread, sq, pos, neg = robust_line(pts)
+            if nx * centre_x + ny * centre_y - dd > 0:  # orient the normal outward
+                nx, ny, dd, pos, neg = -nx, -ny, -dd, neg, pos
+            row = lines[line]
+            row[0], row[1], row[2], row[3], row[4] = nx, ny, dd, sg, cnt
+            row[5], row[6], row[7], row[8] = cx, cy, spread, sq
+            row[9], row[10] = pos, count
+        status, v2, res, cov, sigma = _quad(lines, min_points, max_outside_share, cov_scale,
+                                            cov_floor)
+        if status != FIT_OK:
+            return status, v2, res, cov, sigma
+        moved = np.abs(v2 - v).max()
+        v = v2
+        if moved < 0.05:
+            break
+    return status, v, res, cov, sigma
+
+
+#: (chain, line) -> which vertex splits the chain (and -1 / +1: the line lies before / after
+#: it along the chain's coordinate), 0 for a chain that has no point on the line. Chains:
+#: upper, lower (columns: x), left, right (rows: y); lines: upper left, upper right, lower
+#: left, lower right
+_JOINT_SIDE = ((-1, 1, 0, 0), (0, 0, -1, 1), (-1, 0, 1, 0), (0, -1, 0, 1))
+_JOINT_VERTEX = (1, 3, 0, 2)  # the vertex that splits each chain: top, bottom, left, right
+
+
+@njit(inline="always")
+def _joint_side(p: np.ndarray, i: int, chain: int, line: int, v: np.ndarray, drop_px: float
+                ) -> bool:
+    side = _JOINT_SIDE[chain][line]
+    if side == 0:
+        return False
+    axis = 0 if chain < 2 else 1
+    t = p[i, axis] - v[_JOINT_VERTEX[chain], axis]
+    return t < -drop_px if side < 0 else t > drop_px
+
+
+@njit(inline="always")
+def _joint_count(p: np.ndarray, chain: int, line: int, v: np.ndarray, drop_px: float) -> int:
+    n = 0
+    for i in range(p.shape[0]):
+        n += _joint_side(p, i, chain, line, v, drop_px)
+    return n
+
+
+@njit(inline="always")
+def _joint_fill(p: np.ndarray, chain: int, line: int, v: np.ndarray, drop_px: float,
+                out: np.ndarray, k: int) -> int:
+    for i in range(p.shape[0]):
+        if _joint_side(p, i, chain, line, v, drop_px):
+            out[k, 0], out[k, 1] = p[i, 0], p[i, 1]
+            k += 1
+    return k
 
 
 @njit()
