@@ -42,6 +42,18 @@ def _extract_all(views: list, params: ExtractorParams | None = None
     return errors, wrong, len(views), dets
 
 
+def _gains(views: list, off: ExtractorParams, more: int, what: str) -> None:
+    """The views judged with a feature switched off (``off``) and on (the defaults): on,
+    at least ``more`` more are found, and none more wrong."""
+    counts = {}
+    for name, params in (("off", off), ("on", None)):
+        errors, wrong, _, _ = _extract_all(views, params)
+        counts[name] = (len(errors), wrong)
+    print(f"\n{what}: found, wrong without it {counts['off']}, with it {counts['on']}")
+    assert counts["on"][0] >= counts["off"][0] + more, counts
+    assert counts["on"][1] <= counts["off"][1], counts
+
+
 def _style(**hazards: object) -> RenderStyle:
     return RenderStyle(seed=5, noise_sigma=0.0, photos=True, draw_body=False,
                        camera=WebcamParams(jpeg_quality=0), hazards=Hazards.model_validate(hazards))
@@ -227,14 +239,7 @@ def test_a_shadowed_markers_second_try_reads_its_edges_with_a_narrow_window():
     views = [v.rendered for c in shadows for v in hard_views(c, 80, seed=5)
              if v.rendered.marker_visible]
     off = ExtractorParams(narrow_window=ExtractorParams().window)  # no second try
-    counts = {}
-    for name, params in (("off", off), ("on", None)):
-        errors, wrong, _, _ = _extract_all(views, params)
-        counts[name] = (len(errors), wrong)
-    print(f"\nshadowed views found, wrong: one window {counts['off']}, "
-          f"with the narrow second try {counts['on']}")
-    assert counts["on"][0] >= counts["off"][0] + 3, counts
-    assert counts["on"][1] <= counts["off"][1], counts
+    _gains(views, off, 3, "the narrow second try")
 
 
 def test_an_uncertain_column_scan_takes_the_row_scans_better_vertex():
@@ -274,13 +279,7 @@ def test_a_vertex_under_a_highlight_or_shadow_is_found_from_both_scans():
                   "small: 25-40 px across")
     views = [v.rendered for c in conditions for v in hard_views(c, 80, seed=5)
              if v.rendered.marker_visible]
-    counts = {}
-    for name, params in (("off", ExtractorParams(fuse_scans=False)), ("on", None)):
-        errors, wrong, _, _ = _extract_all(views, params)
-        counts[name] = (len(errors), wrong)
-    print(f"\nfound, wrong: column scan alone {counts['off']}, fused {counts['on']}")
-    assert counts["on"][0] >= counts["off"][0] + 2, counts
-    assert counts["on"][1] <= counts["off"][1], counts
+    _gains(views, ExtractorParams(fuse_scans=False), 2, "the scans fused")
 
 
 def test_the_joint_fit_takes_each_edge_from_both_scans_points():
@@ -320,14 +319,7 @@ def test_a_highlight_over_a_vertex_is_found_from_both_scans_points_at_once():
     (900 views: 70.4 -> 72.6 %, the same 5 wrong)."""
     views = [v.rendered for v in hard_views("specular highlight, clipped", 120, seed=6)
              if v.rendered.marker_visible]
-    counts = {}
-    for name, params in (("off", ExtractorParams(joint_fit=False)), ("on", None)):
-        errors, wrong, _, _ = _extract_all(views, params)
-        counts[name] = (len(errors), wrong)
-    print(f"\nfound, wrong: the scans' vertices weighted {counts['off']}, "
-          f"the joint fit {counts['on']}")
-    assert counts["on"][0] >= counts["off"][0] + 2, counts
-    assert counts["on"][1] <= counts["off"][1], counts
+    _gains(views, ExtractorParams(joint_fit=False), 2, "the joint fit")
 
 
 def test_an_uncertain_column_scan_is_not_found_on_the_narrow_second_try_alone():
