@@ -21,6 +21,13 @@ PLAUSIBLE, NOT_FINITE, OUTSIDE, NOT_CONVEX, BAD_ANGLES, NOT_STRAIGHT, AREA_MISMA
 
 
 @njit(inline="always")
+def largest_variance(a: float, b: float, c: float) -> float:
+    """The larger eigenvalue of the symmetric 2 x 2 matrix [[a, b], [b, c]] (a covariance's
+    variance along its long axis)."""
+    return 0.5 * (a + c) + math.sqrt(max(0.25 * (a - c) ** 2 + b * b, 0.0))
+
+
+@njit(inline="always")
 def _tls_sse(n: float, sx: float, sy: float, sxx: float, syy: float, sxy: float) -> float:
     """Least total squared distance of points to one line, from their moments."""
     a = sxx - sx * sx / n
@@ -440,8 +447,7 @@ def _quad(lines: np.ndarray, min_points: int, max_outside_share: float, cov_scal
         cxy = cov_scale * (j00 * j10 * va + j01 * j11 * vb)
         cyy = cov_scale * (j10 * j10 * va + j11 * j11 * vb) + cov_floor
         cov[vi, 0, 0], cov[vi, 0, 1], cov[vi, 1, 0], cov[vi, 1, 1] = cxx, cxy, cxy, cyy
-        top = 0.5 * (cxx + cyy) + math.sqrt(0.25 * (cxx - cyy) ** 2 + cxy * cxy)
-        sigma_max = max(sigma_max, math.sqrt(top))
+        sigma_max = max(sigma_max, math.sqrt(largest_variance(cxx, cxy, cyy)))
     return FIT_OK, v, math.sqrt(sq_all / max(count, 1)), cov, sigma_max
 
 

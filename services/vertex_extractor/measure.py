@@ -112,9 +112,8 @@ def fuse(v: np.ndarray, cov: np.ndarray, v_rows: np.ndarray, cov_rows: np.ndarra
                 cov[i, r, c] = 2.0 * mean_cov_scale * (
                     wa * wa * cov[i, r, c] + wb * wb * cov_rows[i, r, c]) + (
                     grow if r == c else 0.0)
-        half = 0.5 * (cov[i, 0, 0] + cov[i, 1, 1])
-        det = cov[i, 0, 0] * cov[i, 1, 1] - cov[i, 0, 1] * cov[i, 1, 0]
-        top = max(top, math.sqrt(half + math.sqrt(max(half * half - det, 0.0))))
+        top = max(top, math.sqrt(lines.largest_variance(cov[i, 0, 0], cov[i, 0, 1],
+                                                        cov[i, 1, 1])))
     return worst, top
 
 
@@ -261,9 +260,8 @@ def _joint(u, d, u_rows, d_rows, v0, area, width, height, prm,  # type: ignore[n
         prm[MAX_OUTSIDE_SHARE], JOINT_COV_SCALE * prm[COV_SCALE], prm[COV_FLOOR])
     if fit != lines.FIT_OK:
         return FIT + fit, v, cov
-    status = _accept(vj, residual, cj, sigma, area, width, height, prm, np.zeros(N_STATS),
-                     v, cov)
-    if status == FOUND:
+    status = _accept(vj, residual, cj, sigma, area, width, height, prm, stats, v, cov)
+    if status == FOUND:  # (its area ratio, angles and view in stats too)
         stats[SIGMA], stats[RESIDUAL] = sigma, residual
     return status, v, cov
 
