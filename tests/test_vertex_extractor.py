@@ -266,19 +266,12 @@ def test_an_edge_is_odd_only_off_its_step_and_off_the_others():
     assert odd_edge(np.full(4, np.nan), 0.5, 0.3) == -1
 
 
-def _column(values: list[float]) -> np.ndarray:
-    """A one-column BGR image whose red channel is ``values`` (the score along red)."""
-    img = np.zeros((len(values), 1, 3), np.uint8)
-    img[:, 0, 2] = np.round(values).astype(np.uint8)
-    return img
-
-
 def test_an_edge_point_with_a_shaded_rim_inside_its_window_is_left_out():
-    """scan._crossing_gap: a blurred single step's half-way crossing is the coverage sum's
-    edge; a strip of shaded ink beside the edge (a shadow's boundary 3 px inside, ink at
-    35 %) moves the sum's edge by about 1 px but not the crossing, and the gap says so."""
+    """scan._crossing_gap (on a column's window scores): a blurred single step's half-way
+    crossing is the coverage sum's edge; a strip of shaded ink beside the edge (a shadow's
+    boundary 3 px inside, ink at 35 %) moves the sum's edge by about 1 px but not the
+    crossing, and the gap says so."""
     from services.vertex_extractor.scan import MAX_CROSSING_GAP_PX, _crossing_gap
-    lut, w = np.arange(256.0), np.array([0.0, 0.0, 1.0])
 
     def sum_edge(values: list[float]) -> float:  # outside above (rows 0..), as scan._edge
         return len(values) - 0.5 - sum(v / 200.0 for v in values)
@@ -287,7 +280,6 @@ def test_an_edge_point_with_a_shaded_rim_inside_its_window_is_left_out():
     shaded = [0, 0, 0, 0, 0, 10, 60, 70, 70, 70, 190, 200, 200]  # 35 % ink over 3 rows
     for values, expect_gap in ((step, False), (shaded, True)):
         edge = sum_edge(values)
-        gap = _crossing_gap(_column(values), 0, 0, len(values) - 1, 0.0, 1 / 200.0, lut, w,
-                            edge)
+        gap = _crossing_gap(np.array(values, float), 0, len(values) - 1, 0.0, 1 / 200.0, edge)
         assert (gap > MAX_CROSSING_GAP_PX) == expect_gap, (values, edge, gap)
     assert abs(sum_edge(step) - 6.5) < 0.1

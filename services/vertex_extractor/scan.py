@@ -188,6 +188,7 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     u = np.empty((n, 2))
     d = np.empty((n, 2))
     wl = np.empty(3)  # the score direction at one edge point
+    rows = np.empty(window + outer + 4 * window + 2)  # one edge point's window scores
     exts = np.zeros((2, n), np.int64)
     colour = np.zeros((2, n + 1, 4))  # prefix sums of the local inside colour B, G, R, count
     for i in range(n):
@@ -267,10 +268,10 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
                 continue
             if side == 0:
                 u[i, 1] = _edge(img, x, top[x], -1, window + ext, outer + ext, s_in, s_out,
-                                edge_mode, lut, w, wl, local)
+                                edge_mode, lut, w, wl, local, rows)
             else:
                 d[i, 1] = _edge(img, x, bottom[x], 1, window + ext, outer + ext, s_in, s_out,
-                                edge_mode, lut, w, wl, local)
+                                edge_mode, lut, w, wl, local, rows)
     return OK, area, n, contrast, u, d, box
 
 
@@ -322,7 +323,7 @@ GLOBAL, LOCAL, CROSSING, ORTHOGONAL = 0, 1, 2, 3  # edge methods (ExtractorParam
 
 @njit(inline="always")
 def _edge(img, x, end, out, window, outer, s_in, s_out, mode, lut, w, wl,  # type: ignore[no-untyped-def]
-          local):
+          local, rows):
     """Sub-pixel row of the edge beyond ``end`` (the run's last marker row in column x);
     ``out`` = -1 for the upper edge (background above), +1 for the lower; NaN when the edge
     cannot be measured here (no contrast between the local levels).
@@ -341,7 +342,8 @@ def _edge(img, x, end, out, window, outer, s_in, s_out, mode, lut, w, wl,  # typ
     ORTHOGONAL: the LOCAL sum along a direction orthogonal to grey and to the local
     background's own chroma (measured beyond the window), so that the surround's brightness
     and saturation changes score nothing; LOCAL where the background is grey or its chroma
-    leaves too little contrast. ``wl``: scratch for the local direction.
+    leaves too little contrast. ``wl``: scratch for the local direction; ``rows``: for the
+    window's scores (at least ``window + outer`` long).
     """
     wl[0], wl[1], wl[2] = w[0], w[1], w[2]
     ib, ig, ir = local[0], local[1], local[2]
@@ -387,11 +389,17 @@ def _edge(img, x, end, out, window, outer, s_in, s_out, mode, lut, w, wl,  # typ
     # the window's inner rows must not be brighter than the inside level: a shadow's boundary
     # running along the edge, inside the window, would move the edge outward (blur only makes
     # them darker)
+    if out < 0:
+        first, last = end - outer, end + window - 1
+    else:
+        first, last = end + 1 - window, end + outer
+    for k in range(last - first + 1):  # each score once: the tests below all read them
+        rows[k] = score(img, first + k, x, lut, w)
     k0 = max(2, window // 2 + 1)
     if window - k0 >= 1:
         acc_in = 0.0
         for k in range(k0, window):
-            acc_in += score(img, end - out * k, x, lut, w)
+            acc_in += rows[end - out * k - first]
         if (acc_in / (window - k0) - lo) * inv > 1.0 + FLAT_TOLERANCE:
             return np.nan
     if mode == CROSSING:
@@ -407,17 +415,13 @@ def _edge(img, x, end, out, window, outer, s_in, s_out, mode, lut, w, wl,  # typ
             y += out
         return end + out * 0.5
     acc = 0.0
+    for k in range(last - first + 1):
+        acc += min(max((rows[k] - lo) * inv, -0.5), 1.5)
     if out < 0:
-        for o in range(-outer, window):
-            acc += min(max((score(img, end + o, x, lut, w) - lo) * inv, -0.5), 1.5)
         edge = end + window - 0.5 - acc
-        first, last = end - outer, end + window - 1
     else:
-        for o in range(-window, outer):
-            acc += min(max((score(img, end + 1 + o, x, lut, w) - lo) * inv, -0.5), 1.5)
         edge = end - window + 0.5 + acc
-        first, last = end + 1 - window, end + outer
-    if _crossing_gap(img, x, first, last, lo, inv, lut, w, edge) > MAX_CROSSING_GAP_PX:
+    if _crossing_gap(rows, first, last, lo, inv, edge) > MAX_CROSSING_GAP_PX:
         return np.nan  # two steps: a shadow's boundary in the window, beside the edge
     return edge
 
@@ -426,16 +430,17 @@ MAX_CROSSING_GAP_PX = 0.8  # the coverage sum's edge and the half-way crossing m
 
 
 @njit(inline="always")
-def _crossing_gap(img, x, first, last, lo, inv, lut, w, edge):  # type: ignore[no-untyped-def]
+def _crossing_gap(rows, first, last, lo, inv, edge):  # type: ignore[no-untyped-def]
     """Distance (px) from ``edge`` (the coverage sum's) to the nearest row position in
-    column x, rows ``first``..``last``, where the coverage crosses half way. One step, blurred
+    rows ``first``..``last`` of a column (their scores in ``rows``) where the coverage
+    crosses half way. One step, blurred
     symmetrically (optics, motion, defocus), puts both at the same place; a shadow's boundary
     within the window beside the edge makes a plateau of partial coverage, which moves the
     sum's edge but not the crossing: they differ by the plateau's darkening times its width."""
     best = np.inf
-    prev = (score(img, first, x, lut, w) - lo) * inv
+    prev = (rows[0] - lo) * inv
     for y in range(first + 1, last + 1):
-        cur = (score(img, y, x, lut, w) - lo) * inv
+        cur = (rows[y - first] - lo) * inv
         if (prev - 0.5) * (cur - 0.5) <= 0.0 and prev != cur:
             best = min(best, abs(y - 1 + (0.5 - prev) / (cur - prev) - edge))
         prev = cur
