@@ -146,6 +146,12 @@ class ExtractorParams(BaseModel):
         "uncertain and a highlight clips in the marker's box, each edge is fitted to both "
         "scans' points at once (more points, further apart) and the result judged again; "
         "false: refused")
+    check_rows_instead: bool = Field(
+        default=True, description="a marker measured along its rows because its column "
+        "lines failed (too few points on an edge, a steep view) is refused where the rows' "
+        "lines are off the column scan's measured edge points (a shadow over part of an "
+        "edge tilts the rows' line there), its uncertainty grown by their offset; false: "
+        "the rows' result as it is")
     small_min_area_px: float = Field(
         default=120.0, gt=0, description="min_area_px on the small markers' second try (px²)")
     min_angle_deg: float = Field(default=25.0, gt=0, lt=90,
@@ -476,6 +482,10 @@ MEAN_COV_SCALE = 0.4
 CROSS_CHECK = True
 MAX_SCAN_DISAGREEMENT_PX = 2.5
 GAP_COV_SCALE = 0.5
+#: a marker measured along its rows instead (its column lines failed) is refused where the
+#: rows' lines are farther than this (px) from the column scan's measured edge points
+#: (``measure.points_off``; ``ExtractorParams.check_rows_instead``)
+MAX_ROWS_OFF_PX = 1.5
 
 
 def _params_vector(p: ExtractorParams, diagonal_ratio: float) -> np.ndarray:
@@ -494,6 +504,7 @@ def _params_vector(p: ExtractorParams, diagonal_ratio: float) -> np.ndarray:
     prm[measure.MEAN_COV_SCALE], prm[measure.GAP_COV_SCALE] = MEAN_COV_SCALE, GAP_COV_SCALE
     prm[measure.FUSE] = p.fuse_scans
     prm[measure.JOINT] = p.joint_fit
+    prm[measure.MAX_OFF] = MAX_ROWS_OFF_PX if p.check_rows_instead else 0.0
     return prm
 
 
@@ -518,6 +529,9 @@ def _reason(status: int, s: np.ndarray, prm: np.ndarray) -> str:
                 f"{s[m.PITCH]:.0f} deg about its horizontal axis)")
     if status == m.UNCERTAIN:
         return f"vertex uncertainty too large ({s[m.SIGMA]:.2f} px, 1 sigma)"
+    if status == m.ROWS_OFF:
+        return (f"the row scan's lines are {s[m.OFF]:.1f} px off the column scan's edge points "
+                f"(a shadow's boundary along an edge?)")
     if status == m.DISAGREE:
         return (f"the column and row scans disagree by {s[m.GAP]:.1f} px (a shadow's "
                 f"boundary along an edge, or blur)")

@@ -22,7 +22,7 @@ from services.core.jit import njit
 from services.vertex_extractor import lines, scan
 
 FOUND, NO_SEED, BORDER, SMALL_AREA, FEW_COLUMNS, LOW_CONTRAST, FEW_POINTS = range(7)
-FIT, VERDICT, SHAPE, UNCERTAIN, DISAGREE = 10, 20, 30, 31, 32
+FIT, VERDICT, SHAPE, UNCERTAIN, DISAGREE, ROWS_OFF = 10, 20, 30, 31, 32, 33
 #: statuses of a marker that may be too small for the parameters (a second try, or the
 #: row scan for a tall narrow one)
 FEW = (SMALL_AREA, FEW_COLUMNS, FEW_POINTS, FIT + lines.TOO_FEW_POINTS)
@@ -42,18 +42,22 @@ TALL = 1.3
 JOINT_DROP_PX = 2.0
 JOINT_COV_SCALE = 2.0
 JOINT_MIN_CLIPPED = 4
+#: the rows instead of the columns (``points_off``): the column scan's edge points farther
+#: than this (px) from the rows' lines are not the marker's edge (an arm across it)
+OFF_OUTLIER_PX = 2.5
 
 # the parameter vector (``params_vector``)
 (MIN_LEN, DX, WINDOW, EDGE, OUTER, MIN_AREA, MIN_POINTS, MAX_OUTSIDE_SHARE, COV_SCALE,
  COV_FLOOR, MIN_ANGLE, MAX_RESIDUAL, DIAGONAL_RATIO, MAX_OFF_NORMAL, MAX_ROLL, MAX_PITCH,
- MAX_SIGMA, CROSS_CHECK, MAX_GAP, MEAN_COV_SCALE, GAP_COV_SCALE, FUSE, JOINT,
- N_PARAMS) = range(24)
+ MAX_SIGMA, CROSS_CHECK, MAX_GAP, MEAN_COV_SCALE, GAP_COV_SCALE, FUSE, JOINT, MAX_OFF,
+ N_PARAMS) = range(25)
 # the figures returned beside the status
 (AREA, COLUMNS, CONTRAST, RESIDUAL, QUAD_AREA, ANGLE_MIN, ANGLE_MAX, TILT, ROLL, PITCH,
- SIGMA, GAP, AREA_RATIO, SEED_X, SEED_Y, SEED_RADIUS, CHECKED, COLUMNS_UNSURE,
- N_STATS) = range(19)
+ SIGMA, GAP, AREA_RATIO, SEED_X, SEED_Y, SEED_RADIUS, CHECKED, COLUMNS_UNSURE, OFF,
+ N_STATS) = range(20)
 # CHECKED: 1 where the row scan agreed with the column scan; COLUMNS_UNSURE: 1 where the
-# column scan alone was too uncertain and the rows were asked (``fuse``)
+# column scan alone was too uncertain and the rows were asked (``fuse``); OFF: how far the
+# rows' lines are off the column scan's edge points where the rows were used instead
 
 
 @njit(inline="always")
@@ -115,6 +119,62 @@ def fuse(v: np.ndarray, cov: np.ndarray, v_rows: np.ndarray, cov_rows: np.ndarra
         top = max(top, math.sqrt(lines.largest_variance(cov[i, 0, 0], cov[i, 0, 1],
                                                         cov[i, 1, 1])))
     return worst, top
+
+
+@njit()
+def points_off(u: np.ndarray, d: np.ndarray, v: np.ndarray, drop_px: float,
+               min_points: int) -> float:
+    """How far (px) the other scan's edge points u, d (image px; NaN rows: unmeasured) are off
+    the quadrilateral v (4, 2) px, left, top, right, bottom: each point goes to its nearest
+    edge (none within ``drop_px`` of a vertex, none farther than ``OFF_OUTLIER_PX``: an
+    occluder's boundary), and on each edge with at least ``min_points`` a straight line
+    through their signed distances along it gives the largest, at either end of their
+    stretch. A scan whose own lines failed still says where its measured stretches of the
+    edges are: 0 where no edge has enough of them."""
+    n = u.shape[0] + d.shape[0]
+    edge = np.full(n, -1, np.int64)
+    t = np.zeros(n)
+    r = np.zeros(n)
+    for i in range(n):
+        p = u[i] if i < u.shape[0] else d[i - u.shape[0]]
+        if not np.isfinite(p[1]):
+            continue
+        best = np.inf
+        for k in range(4):
+            ax, ay = v[k, 0], v[k, 1]
+            bx, by = v[(k + 1) % 4, 0], v[(k + 1) % 4, 1]
+            ex, ey = bx - ax, by - ay
+            length = math.sqrt(ex * ex + ey * ey)
+            if length < 1e-9:
+                return np.inf
+            s = ((p[0] - ax) * ex + (p[1] - ay) * ey) / length
+            if s < drop_px or s > length - drop_px:
+                continue
+            dist = ((p[0] - ax) * ey - (p[1] - ay) * ex) / length
+            if abs(dist) < best and abs(dist) <= OFF_OUTLIER_PX:
+                best = abs(dist)
+                edge[i], t[i], r[i] = k, s, dist
+    worst = 0.0
+    for k in range(4):
+        m = 0
+        st = sr = stt = str_ = 0.0
+        lo, hi = np.inf, -np.inf
+        for i in range(n):
+            if edge[i] == k:
+                m += 1
+                st += t[i]
+                sr += r[i]
+                lo, hi = min(lo, t[i]), max(hi, t[i])
+        if m < min_points:
+            continue
+        tm, rm = st / m, sr / m
+        for i in range(n):
+            if edge[i] == k:
+                stt += (t[i] - tm) ** 2
+                str_ += (t[i] - tm) * (r[i] - rm)
+        slope = str_ / stt if stt > 1e-9 else 0.0
+        worst = max(worst, abs(rm + slope * (lo - tm)), abs(rm + slope * (hi - tm)))
+    return worst
 
 
 @njit()
@@ -273,7 +333,8 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
     """The marker at or near the seed (x, y) (a marker pixel within ``radius`` px) measured
     along the columns and judged; then along the rows: instead, for a marker whose columns
     are too few (a small one) or a tall one whose column lines do not fit it (``fit_failed``:
-    a steep view's near-vertical edges crossed at a glancing angle, an arm across them);
+    a steep view's near-vertical edges crossed at a glancing angle, an arm across them),
+    refused where its lines miss the columns' measured edge points (``_columns_agree``);
     otherwise as a cross-check (``cross_check``; refused when
     the scans disagree by more than ``prm[MAX_GAP]`` px). A column scan too uncertain alone
     is combined with an agreeing row scan (``fuse``, where ``prm[FUSE]``), and where that
@@ -331,9 +392,13 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
         if status != scan.BORDER and (few or (tall and fit_failed(found))):
             stats_rows = np.zeros(N_STATS)
             rows, u_rows, d_rows = _rows(img, sx, sy, box, lut, m, prm, stats_rows, v, cov)
+            if rows == FOUND and prm[MAX_OFF] > 0:  # where the columns did measure the edges
+                rows = _columns_agree(img, u, d, v, prm, stats_rows)
             if rows == FOUND:
                 _seed(v, stats_rows)
                 return FOUND, stats_rows, v, cov, u_rows, d_rows
+            if rows == ROWS_OFF:
+                return ROWS_OFF, stats_rows, v, cov, u_rows, d_rows
         return found, stats, v, cov, u, d
     if prm[CROSS_CHECK] > 0:
         v_rows = np.zeros((4, 2))
@@ -349,6 +414,23 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
             stats[CHECKED] = 1.0
     _seed(v, stats)
     return FOUND, stats, v, cov, u, d
+
+
+@njit()
+def _columns_agree(img, u, d, v, prm, stats):  # type: ignore[no-untyped-def]
+    """Do the rows' vertices v (image px), found instead of the columns' (whose lines
+    failed), pass through the column scan's measured edge points u, d (without a notch's)?
+    ``ROWS_OFF`` where their offset (``points_off``, in ``stats[OFF]``) exceeds
+    ``prm[MAX_OFF]`` px. A shadow over part of an edge takes the columns' points there away
+    and can tilt the rows' line through it: 25 of 1 235 rows-instead detections on 21 000
+    hard-condition views were 2-5 px off (2 %, against 0.06 % of cross-checked ones)."""
+    fu, fd, _, _ = lines.finite_points(u, d)
+    if fu.shape[0] == 0 or fd.shape[0] == 0:
+        return FOUND
+    keep_u = scan.notch_kept(img, fu, lines.on_hull(fu, True, lines.HULL_TOLERANCE_PX), -1)
+    keep_d = scan.notch_kept(img, fd, lines.on_hull(fd, False, lines.HULL_TOLERANCE_PX), 1)
+    stats[OFF] = points_off(fu[keep_u], fd[keep_d], v, JOINT_DROP_PX, int(prm[MIN_POINTS]))
+    return ROWS_OFF if stats[OFF] > prm[MAX_OFF] else FOUND
 
 
 @njit()
