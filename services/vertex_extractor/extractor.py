@@ -69,7 +69,10 @@ Where we depart from the paper, keeping its spirit:
   (``COV_SCALE``); one whose largest sigma exceeds ``max_vertex_sigma_px`` is refused.
 - A marker whose columns are too few (small), or a tall one whose column lines do not fit it
   (a steep view's near-vertical edges crossed at a glancing angle, an arm over a vertex), is
-  scanned along its rows instead, under the same tests; any other marker is scanned along
+  scanned along its rows instead, under the same tests, then refused where the rows' lines
+  miss the column scan's measured edge points by more than ``MAX_ROWS_OFF_PX``
+  (``check_rows_instead``: a shadow over part of an edge tilts the rows' line through it)
+  and else fitted with them too (``joint_rows_instead``); any other marker is scanned along
   its rows as well and the two results checked against each other (``measure.cross_check``):
   blur along the columns or a shadow's boundary inside one scan's window moves that scan's
   edges; the vertices are the two scans' mean, their
@@ -152,6 +155,11 @@ class ExtractorParams(BaseModel):
         "lines are off the column scan's measured edge points (a shadow over part of an "
         "edge tilts the rows' line there), its uncertainty grown by their offset; false: "
         "the rows' result as it is")
+    joint_rows_instead: bool = Field(
+        default=True, description="such a marker's edges are then fitted to both scans' "
+        "measured points at once (the columns' points pull back an edge that a shadow over "
+        "part of it tilted in the rows), where that passes every test; false: the rows' "
+        "lines alone")
     small_min_area_px: float = Field(
         default=120.0, gt=0, description="min_area_px on the small markers' second try (px²)")
     min_angle_deg: float = Field(default=25.0, gt=0, lt=90,
@@ -505,6 +513,7 @@ def _params_vector(p: ExtractorParams, diagonal_ratio: float) -> np.ndarray:
     prm[measure.FUSE] = p.fuse_scans
     prm[measure.JOINT] = p.joint_fit
     prm[measure.MAX_OFF] = MAX_ROWS_OFF_PX if p.check_rows_instead else 0.0
+    prm[measure.JOINT_ROWS] = p.joint_rows_instead
     return prm
 
 
