@@ -358,7 +358,8 @@ def test_a_marker_measured_along_its_rows_instead_is_refused_where_the_columns_d
     these views (3 of them such detections, 2.1-5.1 px off) fewer are wrong and hardly any
     right one is lost. Shown alone (the rows' lines as they are, ``joint_rows_instead``
     off): 1 500 views a condition, small 4 -> 1 wrong, soft shadow 13 -> 11, 18 refused in
-    all 21 000; with the joint fit too, 38 -> 36 wrong in all (docs/measured.md)."""
+    all 21 000; with the joint fit on, the check takes 38 -> 36 wrong in all
+    (docs/measured.md)."""
     views = [v.rendered for c, n, seed in (("small: 25-40 px across", 120, 2024),
                                            ("small: 25-40 px across", 138, 11),
                                            ("soft cast shadow (x0.35, 8-40 px)", 46, 7))

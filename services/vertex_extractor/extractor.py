@@ -85,7 +85,8 @@ Limits: one marker per frame (two similar blobs on a cold search are refused as 
 without intrinsics the shape test cannot tell the marker from a rhombus of another shape
 that is a view of it (a narrower one seen face on is the marker turned about its vertical
 axis), and with them only where the view is far from affine (near, large); a marker
-measured by one scan only (too narrow for the columns, or the row scan fails) is not
+measured by the row scan alone (too narrow for the columns) is checked only against the
+stretches of its edges the columns did measure, one whose row scan fails is not
 cross-checked, and a shadow's boundary near a vertex can still move both scans.
 """
 
@@ -153,8 +154,7 @@ class ExtractorParams(BaseModel):
         default=True, description="a marker measured along its rows because its column "
         "lines failed (too few points on an edge, a steep view) is refused where the rows' "
         "lines are off the column scan's measured edge points (a shadow over part of an "
-        "edge tilts the rows' line there), its uncertainty grown by their offset; false: "
-        "the rows' result as it is")
+        "edge tilts the rows' line there); false: the rows' result as it is")
     joint_rows_instead: bool = Field(
         default=True, description="such a marker's edges are then fitted to both scans' "
         "measured points at once (the columns' points pull back an edge that a shadow over "
@@ -375,7 +375,7 @@ class RhombusExtractor:
             return self._paper(image, seed, tracked)
         prm, prm_small = self._loose if test is not None else (self._prm, self._prm_small)
         measured = measure.measure(image, *seed, lut, model, prm)
-        if measured[0] in measure.FEW:  # a small marker?
+        if measured[0] in measure.FEW or measured[0] == measure.ROWS_OFF:  # a small marker?
             prm = prm_small
             if measured[1][measure.AREA] < p.small_window_area_px:  # short chords: narrow
                 prm = prm_small.copy()

@@ -188,7 +188,8 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     u = np.empty((n, 2))
     d = np.empty((n, 2))
     wl = np.empty(3)  # the score direction at one edge point
-    rows = np.empty(window + outer + 4 * window + 2)  # one edge point's window scores
+    # one edge point's window scores: window + outer + 2 ext rows, ext <= 2 window
+    rows = np.empty(window + outer + 4 * window + 2)
     exts = np.zeros((2, n), np.int64)
     colour = np.zeros((2, n + 1, 4))  # prefix sums of the local inside colour B, G, R, count
     for i in range(n):
