@@ -376,6 +376,25 @@ def test_a_marker_measured_along_its_rows_instead_is_refused_where_the_columns_d
     assert counts["off"][0] - counts["on"][0] <= removed + 1, counts  # few right ones lost
 
 
+def test_a_small_marker_refused_as_off_the_columns_gets_the_small_markers_second_try():
+    """A 25-40 px marker whose rows stand in for its failed columns and miss their points
+    (``ROWS_OFF``) is measured again with the small markers' parameters, as one whose
+    columns were too few: here it is then found 0.2 px off (with the first parameters'
+    rows alone it was 2.9 px off)."""
+    from services.vertex_extractor import measure
+    views = [v.rendered for v in hard_views("small: 25-40 px across", 120, seed=2024)
+             if v.rendered.marker_visible]
+    r = views[119]
+    ex = RhombusExtractor()
+    lut, model = ex.params.colour.lut, ex.params.colour.vector
+    cx, cy = r.vertices_px.mean(0).astype(int)
+    assert measure.measure(r.image, int(cx), int(cy), 8, lut, model, ex._prm)[0] == \
+        measure.ROWS_OFF
+    det = ex.extract(r.image)
+    assert det.found, det.reason
+    assert np.linalg.norm(det.vertices_px - r.vertices_px, axis=1).max() < 1.0
+
+
 def test_a_marker_measured_along_its_rows_instead_is_fitted_with_the_columns_points_too():
     """Where the rows are used instead of the columns, each edge is fitted to both scans'
     measured points at once (``joint_rows_instead``): the columns' points pull back an edge

@@ -178,6 +178,14 @@ def points_off(u: np.ndarray, d: np.ndarray, v: np.ndarray, drop_px: float,
 
 
 @njit()
+def _outside_notches(img, u, d):  # type: ignore[no-untyped-def]
+    """Which of the finite U and D points (image px) lie outside a notch in the outline (an
+    occluder across an edge; a clipped highlight's notch is kept: ``scan.notch_kept``)."""
+    return (scan.notch_kept(img, u, lines.on_hull(u, True, lines.HULL_TOLERANCE_PX), -1),
+            scan.notch_kept(img, d, lines.on_hull(d, False, lines.HULL_TOLERANCE_PX), 1))
+
+
+@njit()
 def _judge(img, status, area, n, contrast, u, d, width, height, prm, ox, oy,  # type: ignore[no-untyped-def]
            stats, v_out, cov_out):
     """The scan's result tested as the marker: its status, and the finite edge points (in
@@ -200,8 +208,7 @@ def _judge(img, status, area, n, contrast, u, d, width, height, prm, ox, oy,  # 
         return found, u_out, d_out
     # where the points as they are fail, again without the points of a notch in the outline
     # (the marker is convex: an arm across an edge), unless the notch is a clipped highlight
-    keep_u = scan.notch_kept(img, u, lines.on_hull(u, True, lines.HULL_TOLERANCE_PX), -1)
-    keep_d = scan.notch_kept(img, d, lines.on_hull(d, False, lines.HULL_TOLERANCE_PX), 1)
+    keep_u, keep_d = _outside_notches(img, u, d)
     if keep_u.all() and keep_d.all():
         return found, u_out, d_out
     u2, d2, cx2, cy2 = lines.finite_points(u[keep_u], d[keep_d])
@@ -432,8 +439,8 @@ def _instead(img, u, d, u_rows, d_rows, v, cov, prm, stats):  # type: ignore[no-
     cu, cd, _, _ = lines.finite_points(u, d)
     if cu.shape[0] == 0 or cd.shape[0] == 0:
         return FOUND
-    cu = cu[scan.notch_kept(img, cu, lines.on_hull(cu, True, lines.HULL_TOLERANCE_PX), -1)]
-    cd = cd[scan.notch_kept(img, cd, lines.on_hull(cd, False, lines.HULL_TOLERANCE_PX), 1)]
+    keep_u, keep_d = _outside_notches(img, cu, cd)
+    cu, cd = cu[keep_u], cd[keep_d]
     if prm[MAX_OFF] > 0:
         stats[OFF] = points_off(cu, cd, v, JOINT_DROP_PX, int(prm[MIN_POINTS]))
         if stats[OFF] > prm[MAX_OFF]:
