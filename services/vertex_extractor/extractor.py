@@ -56,7 +56,10 @@ Where we depart from the paper, keeping its spirit:
   is still too uncertain and a highlight clips to white in the marker's box (it took edge
   points away), each edge is fitted to both scans' points at once (``lines.fit_joint``,
   ``joint_fit``: more points, further apart) and judged again; not under a shadow, whose
-  bias more points do not cure.
+  bias more points do not cure. A marker under a clipped highlight whose column and row
+  lines both failed (too few points on an edge of either scan alone: a vertex or much of an
+  edge washed out) is fitted to both scans' points at once too, split where each chain turns
+  (``measure._under_highlight``, ``both_scans_under_highlight``).
 - A marker refused because its column and row scans disagree or an edge is not one step is
   tried once more with a 3 px window (``narrow_window``) under the same tests: a shadow's
   boundary a few px inside an edge falls in the 5 px window and moves the edge. Not one
@@ -149,6 +152,12 @@ class ExtractorParams(BaseModel):
         default=True, description="where the two scans' weighted vertices are still too "
         "uncertain and a highlight clips in the marker's box, each edge is fitted to both "
         "scans' points at once (more points, further apart) and the result judged again; "
+        "false: refused")
+    both_scans_under_highlight: bool = Field(
+        default=True, description="a marker under a clipped highlight whose column and row "
+        "lines both failed (a vertex or much of an edge washed out: too few points on an "
+        "edge of either scan alone) is fitted to both scans' points at once, split where "
+        "each chain turns, on the small markers' second try or after the other tries; "
         "false: refused")
     check_rows_instead: bool = Field(
         default=True, description="a marker measured along its rows because its column "
@@ -366,20 +375,23 @@ class RhombusExtractor:
         """The marker at or near ``seed`` (x, y, search radius px), measured in one compiled
         call (``measure.measure``) and judged; a marker too small for the parameters is tried
         again with the small markers' ones, one whose edges a shadow's boundary may have moved
-        with a narrower window (the first refusal stands when that fails too)."""
+        with a narrower window, one whose lines failed under a clipped highlight from both
+        scans' points at once (the first refusal stands when that fails too)."""
         p = self.params
         lut, model = p.colour.lut, p.colour.vector
         test = self._shape if self._shape is not None and self._shape.size == (
             image.shape[1], image.shape[0]) else None  # intrinsics for this frame size
         if p.method == "paper":
             return self._paper(image, seed, tracked)
-        prm, prm_small = self._loose if test is not None else (self._prm, self._prm_small)
+        base, small = self._loose if test is not None else (self._prm, self._prm_small)
+        prm = base
         measured = measure.measure(image, *seed, lut, model, prm)
-        if measured[0] in measure.FEW or measured[0] == measure.ROWS_OFF:  # a small marker?
-            prm = prm_small
+        first = measured[0]
+        if first in measure.FEW or first == measure.ROWS_OFF:  # a small marker?
+            prm = small.copy()
             if measured[1][measure.AREA] < p.small_window_area_px:  # short chords: narrow
-                prm = prm_small.copy()
                 prm[measure.WINDOW] = min(p.window, p.small_window)
+            prm[measure.UNDER_HIGHLIGHT] = p.both_scans_under_highlight
             measured = measure.measure(image, *seed, lut, model, prm)
         det, biased = self._judge(image, measured, prm, test, tracked)
         if biased and prm[measure.WINDOW] > p.narrow_window:
@@ -390,6 +402,16 @@ class RhombusExtractor:
             measured = measure.measure(image, *seed, lut, model, narrow)
             if measured[1][measure.CHECKED] > 0 or not needs_rows:
                 again, _ = self._judge(image, measured, narrow, test, tracked)
+                if again.found:
+                    return again
+        if p.both_scans_under_highlight and measure.fit_failed(first):
+            # last: under a clipped highlight, both scans' points at once (a marker with too
+            # few points had it on its second try)
+            highlight = base.copy()
+            highlight[measure.UNDER_HIGHLIGHT] = 1.0
+            measured = measure.measure(image, *seed, lut, model, highlight)
+            if measured[0] == measure.FOUND:
+                again, _ = self._judge(image, measured, highlight, test, tracked)
                 if again.found:
                     return again
         return det

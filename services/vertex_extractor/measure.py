@@ -45,12 +45,15 @@ JOINT_MIN_CLIPPED = 4
 #: the rows instead of the columns (``points_off``): the column scan's edge points farther
 #: than this (px) from the rows' lines are not the marker's edge (an arm across it)
 OFF_OUTLIER_PX = 2.5
+#: a marker under a highlight whose scans both failed (``_under_highlight``): each chain's
+#: two lines need this many points to say where it turns
+HIGHLIGHT_MIN_POINTS = 2
 
 # the parameter vector (``params_vector``)
 (MIN_LEN, DX, WINDOW, EDGE, OUTER, MIN_AREA, MIN_POINTS, MAX_OUTSIDE_SHARE, COV_SCALE,
  COV_FLOOR, MIN_ANGLE, MAX_RESIDUAL, DIAGONAL_RATIO, MAX_OFF_NORMAL, MAX_ROLL, MAX_PITCH,
  MAX_SIGMA, CROSS_CHECK, MAX_GAP, MEAN_COV_SCALE, GAP_COV_SCALE, FUSE, JOINT, MAX_OFF,
- JOINT_ROWS, N_PARAMS) = range(26)
+ JOINT_ROWS, UNDER_HIGHLIGHT, N_PARAMS) = range(27)
 # the figures returned beside the status
 (AREA, COLUMNS, CONTRAST, RESIDUAL, QUAD_AREA, ANGLE_MIN, ANGLE_MAX, TILT, ROLL, PITCH,
  SIGMA, GAP, AREA_RATIO, SEED_X, SEED_Y, SEED_RADIUS, CHECKED, COLUMNS_UNSURE, OFF,
@@ -283,6 +286,15 @@ def _accept(v, residual, cov, sigma, area, width, height, prm,  # type: ignore[n
 def _rows(img, sx, sy, box, lut, m, prm, stats, v, cov):  # type: ignore[no-untyped-def]
     """The marker (whose column scan's box is x0, x1, y0, y1) scanned along its rows: the
     column scan on a transposed view of the region around it."""
+    status, area, n, contrast, u, d, roi, x0, y0 = _row_scan(img, sx, sy, box, lut, m, prm)
+    return _judge(roi, status, area, n, contrast, u, d, img.shape[1], img.shape[0], prm, x0,
+                  y0, stats, v, cov)
+
+
+@njit()
+def _row_scan(img, sx, sy, box, lut, m, prm):  # type: ignore[no-untyped-def]
+    """``scan.scan`` along the rows: on the transposed region around the column scan's box
+    (x0, x1, y0, y1); returns its result, the region and the region's corner (x0, y0)."""
     H, W = img.shape[0], img.shape[1]
     window = int(prm[WINDOW])
     outer = int(prm[OUTER])
@@ -293,7 +305,59 @@ def _rows(img, sx, sy, box, lut, m, prm, stats, v, cov):  # type: ignore[no-unty
     status, area, n, contrast, u, d, _ = scan.scan(
         roi, sy - y0, sx - x0, int(prm[MIN_LEN]), int(prm[DX]), window, lut, m,
         int(prm[EDGE]), outer)
-    return _judge(roi, status, area, n, contrast, u, d, W, H, prm, x0, y0, stats, v, cov)
+    return status, area, n, contrast, u, d, roi, x0, y0
+
+
+@njit()
+def _split_at(points):  # type: ignore[no-untyped-def]
+    """Where a chain (n, 2) px sorted by x turns from one line to the next (x px; the best
+    two-line split, ``lines.best_split``), or NaN with too few points."""
+    if points.shape[0] < 2 * HIGHLIGHT_MIN_POINTS:
+        return np.nan
+    k = lines.best_split(points, HIGHLIGHT_MIN_POINTS)
+    return 0.5 * (points[k - 1, 0] + points[k, 0])
+
+
+@njit()
+def _under_highlight(img, u, d, sx, sy, box, area, lut, m, prm,  # type: ignore[no-untyped-def]
+                     stats):
+    """A marker under a clipped highlight whose column and row lines both failed (a vertex
+    or much of an edge washed out: too few points on an edge of either scan alone), each
+    edge fitted to both scans' measured points (``_joint``) from where each chain turns
+    (``_split_at``); the clipped pixels in the box count as the blob's (the highlight hides
+    marker there). Returns (status, vertices (4, 2) px, covariance (4, 2, 2) px²)."""
+    v = np.zeros((4, 2))
+    cov = np.zeros((4, 2, 2))
+    status, _, _, _, u_rows, d_rows, roi, x0, y0 = _row_scan(img, sx, sy, box, lut, m, prm)
+    if status != scan.OK:
+        return FIT + lines.TOO_FEW_POINTS, v, cov
+    cu, cd, _, _ = lines.finite_points(u, d)
+    keep_u, keep_d = _outside_notches(img, cu, cd)
+    cu, cd = cu[keep_u], cd[keep_d]
+    ru, rd, _, _ = lines.finite_points(u_rows, d_rows)
+    keep_u, keep_d = _outside_notches(roi, ru, rd)
+    ru, rd = ru[keep_u], rd[keep_d]
+    top, bottom, left, right = _split_at(cu), _split_at(cd), _split_at(ru), _split_at(rd)
+    if not (np.isfinite(top) and np.isfinite(bottom) and np.isfinite(left) and
+            np.isfinite(right)):
+        return FIT + lines.TOO_FEW_POINTS, v, cov
+    v0 = np.empty((4, 2))  # left, top, right, bottom: the box's sides where a chain turns
+    v0[0, 0], v0[0, 1] = box[0], left + y0
+    v0[1, 0], v0[1, 1] = top, box[2]
+    v0[2, 0], v0[2, 1] = box[1], right + y0
+    v0[3, 0], v0[3, 1] = bottom, box[3]
+    left_chain = np.empty((ru.shape[0], 2))  # the rows' chains in the image: (x, y) = (y', x')
+    right_chain = np.empty((rd.shape[0], 2))
+    for i in range(ru.shape[0]):
+        left_chain[i, 0], left_chain[i, 1] = ru[i, 1] + x0, ru[i, 0] + y0
+    for i in range(rd.shape[0]):
+        right_chain[i, 0], right_chain[i, 1] = rd[i, 1] + x0, rd[i, 0] + y0
+    clipped = 0
+    for y in range(box[2], box[3] + 1):
+        for x in range(box[0], box[1] + 1):
+            clipped += min(min(img[y, x, 0], img[y, x, 1]), img[y, x, 2]) >= scan.CLIPPED
+    return _joint(cu, cd, left_chain, right_chain, v0, area + clipped, img.shape[1],
+                  img.shape[0], prm, stats)
 
 
 @njit()
@@ -347,7 +411,9 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
     the scans disagree by more than ``prm[MAX_GAP]`` px). A column scan too uncertain alone
     is combined with an agreeing row scan (``fuse``, where ``prm[FUSE]``), and where that
     is still too uncertain under a clipped highlight, both scans' points are fitted at once
-    (``_joint``, where ``prm[JOINT]``).
+    (``_joint``, where ``prm[JOINT]``). Where ``prm[UNDER_HIGHLIGHT]``, a marker under a
+    clipped highlight whose column and row lines both failed is fitted to both scans'
+    points at once (``_under_highlight``).
 
     Returns (status, stats, vertices (4, 2) px, covariance (4, 2, 2) px², U and D edge
     points (n, 2) px); when found, the next frame's seed is in ``stats``.
@@ -407,6 +473,15 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
                 return FOUND, stats_rows, v, cov, u_rows, d_rows
             if rows == ROWS_OFF:
                 return ROWS_OFF, stats_rows, v, cov, u_rows, d_rows
+        if status != scan.BORDER and (few or fit_failed(found)) and prm[UNDER_HIGHLIGHT] > 0 \
+                and _clipped(img, box):  # neither scan's lines alone: both scans' points
+            stats_joint = stats.copy()
+            joint, vj, cj = _under_highlight(img, u, d, sx, sy, box, area, lut, m, prm,
+                                             stats_joint)
+            if joint == FOUND:
+                stats_joint[CHECKED] = 1.0
+                _seed(vj, stats_joint)
+                return FOUND, stats_joint, vj, cj, u, d
         return found, stats, v, cov, u, d
     if prm[CROSS_CHECK] > 0:
         v_rows = np.zeros((4, 2))
