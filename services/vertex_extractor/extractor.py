@@ -153,6 +153,13 @@ class ExtractorParams(BaseModel):
         "uncertain and a highlight clips in the marker's box, each edge is fitted to both "
         "scans' points at once (more points, further apart) and the result judged again; "
         "false: refused")
+    shaded_spread: float = Field(
+        default=scan.SHADED, gt=0.0, description="a marker whose columns' centres spread by "
+        "more than this share of the brightest is shaded (a cast shadow over part of it): "
+        "each edge point then takes its local inside level (over the neighbouring columns), "
+        "the whole chain's being off by the shadow's gradient; in even light the chain's, "
+        "where the local one is within 8 % of it (the JPEG's blocks move the local one "
+        "about); 1 or more: never shaded")
     both_scans_under_highlight: bool = Field(
         default=True, description="a marker under a clipped highlight whose column and row "
         "lines both failed (a vertex or much of an edge washed out: too few points on an "
@@ -536,6 +543,7 @@ def _params_vector(p: ExtractorParams, diagonal_ratio: float) -> np.ndarray:
     prm[measure.JOINT] = p.joint_fit
     prm[measure.MAX_OFF] = MAX_ROWS_OFF_PX if p.check_rows_instead else 0.0
     prm[measure.JOINT_ROWS] = p.joint_rows_instead
+    prm[measure.SHADED] = p.shaded_spread
     return prm
 
 
