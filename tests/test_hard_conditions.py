@@ -293,7 +293,7 @@ def test_a_vertex_under_a_highlight_or_shadow_is_found_from_both_scans():
     """Where the column scan's lines reach a vertex from far (a highlight or a shadow over
     it, edges crossed at a glancing angle) its sigma passed the limit and the marker was
     refused, though the row scan knew the vertex well. Fused (``fuse_scans``), more such
-    markers are found, none more wrong: on these 240 views 213 -> 216, 2 wrong either way
+    markers are found, none more wrong: on these 240 views 212 -> 215, 2 wrong either way
     (900 views a condition: highlight 67.7 -> 70.4 %, hard shadow 93.6 -> 95.0 %, small
     94.9 -> 95.7 %; docs/measured.md)."""
     conditions = ("specular highlight, clipped", "hard cast shadow (x0.35)",

@@ -159,7 +159,7 @@ class ExtractorParams(BaseModel):
         "each edge point then takes its local inside level (over the neighbouring columns), "
         "the whole chain's being off by the shadow's gradient; in even light the chain's, "
         "where the local one is within 8 % of it (the JPEG's blocks move the local one "
-        "about); 1 or more: never shaded")
+        "about); 1 or more: never shaded (the spread is at most 1)")
     both_scans_under_highlight: bool = Field(
         default=True, description="a marker under a clipped highlight whose column and row "
         "lines both failed (a vertex or much of an edge washed out: too few points on an "
@@ -404,6 +404,7 @@ class RhombusExtractor:
         if biased and prm[measure.WINDOW] > p.narrow_window:
             narrow = prm.copy()
             narrow[measure.WINDOW] = p.narrow_window
+            narrow[measure.UNDER_HIGHLIGHT] = 0.0  # a shadow's bias, not a highlight's gaps
             # a marker whose column scan alone was too uncertain needs the rows' agreement
             needs_rows = measured[1][measure.COLUMNS_UNSURE] > 0
             measured = measure.measure(image, *seed, lut, model, narrow)
@@ -543,7 +544,7 @@ def _params_vector(p: ExtractorParams, diagonal_ratio: float) -> np.ndarray:
     prm[measure.JOINT] = p.joint_fit
     prm[measure.MAX_OFF] = MAX_ROWS_OFF_PX if p.check_rows_instead else 0.0
     prm[measure.JOINT_ROWS] = p.joint_rows_instead
-    prm[measure.SHADED] = p.shaded_spread
+    prm[measure.SHADED_SPREAD] = p.shaded_spread
     return prm
 
 

@@ -53,7 +53,7 @@ HIGHLIGHT_MIN_POINTS = 2
 (MIN_LEN, DX, WINDOW, EDGE, OUTER, MIN_AREA, MIN_POINTS, MAX_OUTSIDE_SHARE, COV_SCALE,
  COV_FLOOR, MIN_ANGLE, MAX_RESIDUAL, DIAGONAL_RATIO, MAX_OFF_NORMAL, MAX_ROLL, MAX_PITCH,
  MAX_SIGMA, CROSS_CHECK, MAX_GAP, MEAN_COV_SCALE, GAP_COV_SCALE, FUSE, JOINT, MAX_OFF,
- JOINT_ROWS, UNDER_HIGHLIGHT, SHADED, N_PARAMS) = range(28)
+ JOINT_ROWS, UNDER_HIGHLIGHT, SHADED_SPREAD, N_PARAMS) = range(28)
 # the figures returned beside the status
 (AREA, COLUMNS, CONTRAST, RESIDUAL, QUAD_AREA, ANGLE_MIN, ANGLE_MAX, TILT, ROLL, PITCH,
  SIGMA, GAP, AREA_RATIO, SEED_X, SEED_Y, SEED_RADIUS, CHECKED, COLUMNS_UNSURE, OFF,
@@ -304,7 +304,7 @@ def _row_scan(img, sx, sy, box, lut, m, prm):  # type: ignore[no-untyped-def]
     roi = img[y0:y1 + 1, x0:x1 + 1].transpose(1, 0, 2)
     status, area, n, contrast, u, d, _ = scan.scan(
         roi, sy - y0, sx - x0, int(prm[MIN_LEN]), int(prm[DX]), window, lut, m,
-        int(prm[EDGE]), outer, prm[SHADED])
+        int(prm[EDGE]), outer, prm[SHADED_SPREAD])
     return status, area, n, contrast, u, d, roi, x0, y0
 
 
@@ -346,7 +346,8 @@ def _under_highlight(img, u, d, sx, sy, box, area, lut, m, prm,  # type: ignore[
     v0[1, 0], v0[1, 1] = top, box[2]
     v0[2, 0], v0[2, 1] = box[1], right + y0
     v0[3, 0], v0[3, 1] = bottom, box[3]
-    left_chain = np.empty((ru.shape[0], 2))  # the rows' chains in the image: (x, y) = (y', x')
+    # the rows' chains in the image: (x, y) = (y' + x0, x' + y0)
+    left_chain = np.empty((ru.shape[0], 2))
     right_chain = np.empty((rd.shape[0], 2))
     for i in range(ru.shape[0]):
         left_chain[i, 0], left_chain[i, 1] = ru[i, 1] + x0, ru[i, 0] + y0
@@ -431,7 +432,7 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
     # compiled scan for both (about half the first compile, no slower)
     status, area, n, contrast, u, d, box = scan.scan(
         img[0:H, 0:W], sx, sy, int(prm[MIN_LEN]), int(prm[DX]), window, lut, m,
-        int(prm[EDGE]), outer, prm[SHADED])
+        int(prm[EDGE]), outer, prm[SHADED_SPREAD])
     found, u, d = _judge(img, status, area, n, contrast, u, d, W, H, prm, -1, -1, stats, v,
                          cov)
     if found == UNCERTAIN and prm[FUSE] > 0:  # the rows may know the vertex better
@@ -478,8 +479,7 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
             stats_joint = stats.copy()
             joint, vj, cj = _under_highlight(img, u, d, sx, sy, box, area, lut, m, prm,
                                              stats_joint)
-            if joint == FOUND:
-                stats_joint[CHECKED] = 1.0
+            if joint == FOUND:  # (not CHECKED: no scan was tested against the other)
                 _seed(vj, stats_joint)
                 return FOUND, stats_joint, vj, cj, u, d
         return found, stats, v, cov, u, d

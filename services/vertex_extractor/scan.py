@@ -123,7 +123,9 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     column and its neighbours whose run is at least ``min_len`` px long (Table 1's stop).
     Status: OK, BORDER (the marker reaches the image border or the edge windows would),
     LOW_CONTRAST (less than MIN_CONTRAST or CONTRAST_SNR x the inside's noise between inside
-    and outside, linear x 255).
+    and outside, linear x 255). ``shaded_spread``: a marker whose columns' centres spread by
+    more than this share of the brightest (``_levels``) is shaded, and each edge point then
+    takes its local inside level (``SHADED``).
     """
     H, W = img.shape[0], img.shape[1]
     empty = np.empty((0, 2))
@@ -329,7 +331,7 @@ def _levels(img, a, n, dx, top, bottom, gap, lut, w, m):  # type: ignore[no-unty
     if k > 2:  # neighbouring columns' differences: a shadow's or highlight's step is one of them
         noise = 1.4826 / np.sqrt(2.0) * np.median(np.abs(np.diff(inside[:k])))
         level = np.sort(inside[:k])
-        top_level = level[(9 * k) // 10]
+        top_level = level[k - 1 - k // 10]
         if top_level > 0:
             spread = (top_level - level[k // 10]) / top_level
     return np.median(inside[:k]), np.median(outside), noise, spread
