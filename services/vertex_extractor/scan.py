@@ -229,10 +229,10 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
                     colour[side, i + 1, 3] += 1.0
     local = np.empty(3)
     # a shaded marker (its columns' centres spread by more than ``shaded_spread``, by default
-    # SHADED; 1 or more: never): each edge point takes
-    # its local inside level, the chain's mean being off wherever a shadow's gradient or
-    # boundary lies; in even light the chain's mean where the local one is within 8 % of it
-    # (the JPEG's blocks and the demosaicing move the local one about, not the light)
+    # SHADED; 1 or more: never): each edge point takes its local inside level, the chain's
+    # mean being off wherever a shadow's gradient or boundary lies; in even light the chain's
+    # mean where the local one is within 8 % of it (the JPEG's blocks and the demosaicing
+    # move the local one about, not the light)
     shaded = spread > shaded_spread
     for i in range(n):
         x = a + i * dx
@@ -326,15 +326,16 @@ def _levels(img, a, n, dx, top, bottom, gap, lut, w, m):  # type: ignore[no-unty
             k += 1
         outside[2 * i] = score(img, top[x] - gap, x, lut, w)
         outside[2 * i + 1] = score(img, bottom[x] + gap, x, lut, w)
+    level = np.sort(inside[:k])  # (k >= 1: the scan counted the same centres)
     noise = 0.0
     spread = 0.0
     if k > 2:  # neighbouring columns' differences: a shadow's or highlight's step is one of them
         noise = 1.4826 / np.sqrt(2.0) * np.median(np.abs(np.diff(inside[:k])))
-        level = np.sort(inside[:k])
         top_level = level[k - 1 - k // 10]
         if top_level > 0:
             spread = (top_level - level[k // 10]) / top_level
-    return np.median(inside[:k]), np.median(outside), noise, spread
+    median = 0.5 * (level[(k - 1) // 2] + level[k // 2])  # (sorted once, for both)
+    return median, np.median(outside), noise, spread
 
 
 LOCAL_ROWS = 3  # rows beyond the window that give the local background level
