@@ -114,7 +114,7 @@ def test_every_refusal_of_the_compiled_measurement_has_its_reason():
     from services.vertex_extractor.extractor import _reason
     statuses = [measure.NO_SEED, measure.BORDER, measure.SMALL_AREA, measure.FEW_COLUMNS,
                 measure.LOW_CONTRAST, measure.FEW_POINTS, measure.SHAPE, measure.UNCERTAIN,
-                measure.DISAGREE, measure.ROWS_OFF]
+                measure.DISAGREE, measure.ROWS_OFF, measure.PERSPECTIVE]
     statuses += [measure.FIT + s for s in (lines.TOO_FEW_POINTS, lines.PARALLEL,
                                            lines.HIDDEN_EDGE, lines.OUTSIDE_POINTS)]
     statuses += [measure.VERDICT + s for s in range(lines.NOT_FINITE, lines.AREA_MISMATCH + 1)]

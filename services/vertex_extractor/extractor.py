@@ -41,7 +41,10 @@ Where we depart from the paper, keeping its spirit:
   quadrilateral must be the deployment's rhombus seen at most ``max_off_normal_deg`` off its
   normal, rolled at most ``max_roll_deg`` and turned at most ``max_pitch_deg`` about its
   horizontal axis (a level camera at about the marker's height), so that a card, a square or
-  a wide rhombus in the same ink is refused. With the camera's intrinsics
+  a wide rhombus in the same ink is refused; and its diagonals must cross near their
+  midpoints, as they do for the rhombus seen from no nearer than the working distance
+  (``lines.diagonal_shift``, ``max_diagonal_shift``: an arm's straight edge across a vertex,
+  taken for an edge, shifts them far more). With the camera's intrinsics
   (``use_intrinsics``) the best planar pose of the rhombus must also reproject the vertices
   and view it as the deployment can (``shape.py``). Each edge must be a clean step: a
   shadow's boundary running along an edge just inside the marker moves the whole edge by a
@@ -190,6 +193,13 @@ class ExtractorParams(BaseModel):
         description="largest turn about the marker's horizontal axis (its vertical diagonal "
                     "foreshortened): small when the camera and the marker stand upright at "
                     "similar heights; raise it for a camera looking down")
+    max_diagonal_shift: float = Field(
+        default=0.15, gt=0, le=0.5,
+        description="the quadrilateral's diagonals must cross within this share of each "
+        "diagonal of its midpoint: a rhombus of longer half-diagonal h seen from Z shifts it by "
+        "at most h / 2Z, however turned (0.11 for the default 6.6 cm marker at 15 cm; the "
+        "webcam renders at 15-80 cm reach 0.09); a vertex cut off by an arm's straight edge "
+        "shifts it further. Raise it for a larger marker or a closer camera")
     max_vertex_sigma_px: float = Field(
         default=1.2, gt=0, description="a detection whose vertex uncertainty (1 sigma, "
                                        "largest axis) exceeds this is refused")
@@ -545,6 +555,7 @@ def _params_vector(p: ExtractorParams, diagonal_ratio: float) -> np.ndarray:
     prm[measure.MAX_OFF] = MAX_ROWS_OFF_PX if p.check_rows_instead else 0.0
     prm[measure.JOINT_ROWS] = p.joint_rows_instead
     prm[measure.SHADED_SPREAD] = p.shaded_spread
+    prm[measure.MAX_DIAGONAL_SHIFT] = p.max_diagonal_shift
     return prm
 
 
@@ -567,6 +578,11 @@ def _reason(status: int, s: np.ndarray, prm: np.ndarray) -> str:
         return (f"not the marker's shape in any expected view (as the marker it would be "
                 f"{s[m.TILT]:.0f} deg off its normal, rolled {s[m.ROLL]:.0f} deg, "
                 f"{s[m.PITCH]:.0f} deg about its horizontal axis)")
+    if status == m.PERSPECTIVE:
+        return (f"not the marker from the working distance: its diagonals cross "
+                f"{100 * s[m.DIAGONAL_SHIFT]:.0f} % of their length off their midpoints "
+                f"(at most {100 * prm[m.MAX_DIAGONAL_SHIFT]:.0f} %; a vertex cut off by "
+                f"something in front?)")
     if status == m.UNCERTAIN:
         return f"vertex uncertainty too large ({s[m.SIGMA]:.2f} px, 1 sigma)"
     if status == m.ROWS_OFF:

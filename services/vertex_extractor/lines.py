@@ -562,6 +562,28 @@ def weak_view(v: np.ndarray, diagonal_ratio: float) -> tuple[float, float, float
 
 
 @njit()
+def diagonal_shift(v: np.ndarray) -> float:
+    """How far the quadrilateral v's (left, top, right, bottom) px diagonals cross from their
+    midpoints, as a share of each diagonal (the larger of the two; 1 where they do not cross
+    within both). A plane's segment whose ends lie at depths Z - δ and Z + δ has its midpoint
+    imaged at (Z + δ) / 2Z along it: a shift of δ / 2Z, at most h / 2Z for a rhombus of
+    longer half-diagonal h seen from Z, however it is turned. A quadrilateral whose
+    diagonals cross further off is no view of the marker from that far (a vertex cut off
+    by an occluder's boundary)."""
+    rx, ry = v[2, 0] - v[0, 0], v[2, 1] - v[0, 1]  # L -> R
+    bx, by = v[3, 0] - v[1, 0], v[3, 1] - v[1, 1]  # T -> B
+    det = -rx * by + ry * bx
+    if abs(det) < 1e-12:
+        return 1.0
+    tx, ty = v[1, 0] - v[0, 0], v[1, 1] - v[0, 1]  # L + a (R - L) = T + b (B - T)
+    a = (-tx * by + ty * bx) / det
+    b = (rx * ty - ry * tx) / det
+    if not (0.0 < a < 1.0 and 0.0 < b < 1.0):
+        return 1.0
+    return max(abs(a - 0.5), abs(b - 0.5))
+
+
+@njit()
 def finite_points(u: np.ndarray, d: np.ndarray) -> tuple[np.ndarray, np.ndarray, float, float]:
     """U and D points without the unmeasured ones (NaN rows), and their centre (x, y)."""
     out = []

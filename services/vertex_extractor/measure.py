@@ -22,7 +22,7 @@ from services.core.jit import njit
 from services.vertex_extractor import lines, scan
 
 FOUND, NO_SEED, BORDER, SMALL_AREA, FEW_COLUMNS, LOW_CONTRAST, FEW_POINTS = range(7)
-FIT, VERDICT, SHAPE, UNCERTAIN, DISAGREE, ROWS_OFF = 10, 20, 30, 31, 32, 33
+FIT, VERDICT, SHAPE, UNCERTAIN, DISAGREE, ROWS_OFF, PERSPECTIVE = 10, 20, 30, 31, 32, 33, 34
 #: statuses of a marker that may be too small for the parameters (a second try, or the
 #: row scan for a tall narrow one)
 FEW = (SMALL_AREA, FEW_COLUMNS, FEW_POINTS, FIT + lines.TOO_FEW_POINTS)
@@ -53,14 +53,15 @@ HIGHLIGHT_MIN_POINTS = 2
 (MIN_LEN, DX, WINDOW, EDGE, OUTER, MIN_AREA, MIN_POINTS, MAX_OUTSIDE_SHARE, COV_SCALE,
  COV_FLOOR, MIN_ANGLE, MAX_RESIDUAL, DIAGONAL_RATIO, MAX_OFF_NORMAL, MAX_ROLL, MAX_PITCH,
  MAX_SIGMA, CROSS_CHECK, MAX_GAP, MEAN_COV_SCALE, GAP_COV_SCALE, FUSE, JOINT, MAX_OFF,
- JOINT_ROWS, UNDER_HIGHLIGHT, SHADED_SPREAD, N_PARAMS) = range(28)
+ JOINT_ROWS, UNDER_HIGHLIGHT, SHADED_SPREAD, MAX_DIAGONAL_SHIFT, N_PARAMS) = range(29)
 # the figures returned beside the status
 (AREA, COLUMNS, CONTRAST, RESIDUAL, QUAD_AREA, ANGLE_MIN, ANGLE_MAX, TILT, ROLL, PITCH,
  SIGMA, GAP, AREA_RATIO, SEED_X, SEED_Y, SEED_RADIUS, CHECKED, COLUMNS_UNSURE, OFF,
- N_STATS) = range(20)
+ DIAGONAL_SHIFT, N_STATS) = range(21)
 # CHECKED: 1 where the row scan agreed with the column scan; COLUMNS_UNSURE: 1 where the
 # column scan alone was too uncertain and the rows were asked (``fuse``); OFF: how far the
-# rows' lines are off the column scan's edge points where the rows were used instead
+# rows' lines are off the column scan's edge points where the rows were used instead;
+# DIAGONAL_SHIFT: how far the diagonals cross off their midpoints (``lines.diagonal_shift``)
 
 
 @njit(inline="always")
@@ -263,8 +264,9 @@ def _tests(u, d, cx, cy, area, width, height, prm, ox, oy,  # type: ignore[no-un
 def _accept(v, residual, cov, sigma, area, width, height, prm,  # type: ignore[no-untyped-def]
             stats, v_out, cov_out):
     """The fitted quadrilateral v (image px) tested as the marker: plausible, the marker's
-    shape in a view it can have, certain enough; the vertices and covariance go to v_out,
-    cov_out once it passes all but the last."""
+    shape in a view it can have (its diagonals crossing near their midpoints, as from no
+    nearer than the working distance: ``lines.diagonal_shift``), certain enough; the
+    vertices and covariance go to v_out, cov_out once it passes all but the last."""
     verdict, quad_area, amin, amax = lines.check_rhombus(
         v, residual, float(area), width, height, prm[MIN_ANGLE], prm[MAX_RESIDUAL])
     stats[QUAD_AREA], stats[ANGLE_MIN], stats[ANGLE_MAX] = quad_area, amin, amax
@@ -274,6 +276,9 @@ def _accept(v, residual, cov, sigma, area, width, height, prm,  # type: ignore[n
     stats[TILT], stats[ROLL], stats[PITCH] = tilt, roll, pitch
     if tilt > prm[MAX_OFF_NORMAL] or roll > prm[MAX_ROLL] or pitch > prm[MAX_PITCH]:
         return SHAPE
+    stats[DIAGONAL_SHIFT] = lines.diagonal_shift(v)
+    if stats[DIAGONAL_SHIFT] > prm[MAX_DIAGONAL_SHIFT]:
+        return PERSPECTIVE
     stats[AREA_RATIO] = min(quad_area / (width * height), 1.0)
     v_out[:] = v
     cov_out[:] = cov
