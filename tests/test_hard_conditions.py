@@ -212,9 +212,11 @@ def test_the_diagonals_cross_off_their_midpoints_by_the_depth_difference():
         T = marker_pose(z, cam.K[0, 2], cam.K[1, 2], cam, np.radians(a))
         v = cam.project((T[:3, :3] @ g.marker_points().T).T + T[:3, 3])
         assert diagonal_shift(v) == pytest.approx(w * np.sin(np.radians(a)) / (2 * z), rel=1e-9)
-    bound = ExtractorParams().max_diagonal_shift
     h = max(g.marker_width_m, g.marker_height_m) / 2
-    assert h / (2 * 0.15) < bound  # (turned about any axis, from 15 cm or more)
+    bound = RhombusExtractor().max_diagonal_shift  # from 15 cm on (nearest_view_m)
+    assert h / (2 * 0.15) < bound < 0.2  # (turned about any axis, on the optical axis)
+    big = Geometry(marker_width_m=0.1, marker_height_m=0.132)
+    assert RhombusExtractor(geometry=big).max_diagonal_shift == pytest.approx(2 * bound)
 
 
 def test_an_arms_edge_across_a_vertex_is_refused_by_where_the_diagonals_cross():
@@ -229,7 +231,7 @@ def test_an_arms_edge_across_a_vertex_is_refused_by_where_the_diagonals_cross():
     folder = Path(__file__).parent / "data" / "hard_frames"
     img = cv2.imread(str(folder / "arm_over_a_vertex.png"))
     truth = np.array(json.loads((folder / "arm_over_a_vertex.json").read_text())["vertices_px"])
-    off = RhombusExtractor(ExtractorParams(max_diagonal_shift=0.5)).extract(img)
+    off = RhombusExtractor(ExtractorParams(nearest_view_m=0.01)).extract(img)  # (no bound)
     assert off.found and np.linalg.norm(off.vertices_px - truth, axis=1).max() > 10
     det = RhombusExtractor().extract(img)
     error = np.linalg.norm(det.vertices_px - truth, axis=1)

@@ -43,7 +43,7 @@ Where we depart from the paper, keeping its spirit:
   horizontal axis (a level camera at about the marker's height), so that a card, a square or
   a wide rhombus in the same ink is refused; and its diagonals must cross near their
   midpoints, as they do for the rhombus seen from no nearer than the working distance
-  (``lines.diagonal_shift``, ``max_diagonal_shift``: an arm's straight edge across a vertex,
+  (``lines.diagonal_shift``, ``nearest_view_m``: an arm's straight edge across a vertex,
   taken for an edge, shifts them far more). With the camera's intrinsics
   (``use_intrinsics``) the best planar pose of the rhombus must also reproject the vertices
   and view it as the deployment can (``shape.py``). Each edge must be a clean step: a
@@ -193,13 +193,14 @@ class ExtractorParams(BaseModel):
         description="largest turn about the marker's horizontal axis (its vertical diagonal "
                     "foreshortened): small when the camera and the marker stand upright at "
                     "similar heights; raise it for a camera looking down")
-    max_diagonal_shift: float = Field(
-        default=0.15, gt=0, le=0.5,
-        description="the quadrilateral's diagonals must cross within this share of each "
-        "diagonal of its midpoint: a rhombus of longer half-diagonal h seen from Z shifts it by "
-        "at most h / 2Z, however turned (0.11 for the default 6.6 cm marker at 15 cm; the "
-        "webcam renders at 15-80 cm reach 0.09); a vertex cut off by an arm's straight edge "
-        "shifts it further. Raise it for a larger marker or a closer camera")
+    nearest_view_m: float = Field(
+        default=0.15, gt=0.0, description="the nearest the camera comes to the marker (m): "
+        "a quadrilateral whose diagonals cross further off their midpoints than the marker "
+        "seen from there allows is refused (the rhombus of longer half-diagonal h at depth Z: "
+        "at most h / 2Z of each diagonal, however turned; x 1.35 for the depth at the "
+        "image's corners: 15 % for the default 6.6 cm marker from 15 cm, the webcam renders "
+        "at 15-80 cm reach 8.7 %); a vertex cut off by an arm's straight edge, taken for an "
+        "edge, shifts them further")
     max_vertex_sigma_px: float = Field(
         default=1.2, gt=0, description="a detection whose vertex uncertainty (1 sigma, "
                                        "largest axis) exceeds this is refused")
@@ -267,21 +268,27 @@ class RhombusExtractor:
     """Stateful extractor: remembers the last marker to seed the next frame (tracking)."""
 
     def __init__(self, params: ExtractorParams | None = None,
-                 diagonal_ratio: float | None = None) -> None:
-        """``diagonal_ratio``: the marker's horizontal diagonal over its vertical one
-        (default: the default ``Geometry``'s)."""
+                 diagonal_ratio: float | None = None, *, geometry: Geometry | None = None
+                 ) -> None:
+        """``geometry``: the deployment's mounts, whose marker's diagonals the shape tests
+        take (default: the default ``Geometry``'s); ``diagonal_ratio``: the horizontal
+        diagonal over the vertical one, if not the geometry's."""
         self.params = params or ExtractorParams()
+        g = geometry or Geometry()
         if diagonal_ratio is None:
-            g = Geometry()
             diagonal_ratio = g.marker_width_m / g.marker_height_m
         self.diagonal_ratio = diagonal_ratio
+        #: the largest share of a diagonal by which the diagonals may cross off their
+        #: midpoints (``lines.diagonal_shift``), from the marker seen from ``nearest_view_m``
+        self.max_diagonal_shift = min(DIAGONAL_SHIFT_SLACK * 0.5 * max(
+            g.marker_width_m, g.marker_height_m) / (2.0 * self.params.nearest_view_m), 0.5)
         p = self.params  # a small marker's second chance: shorter chords, fewer points
         self._small = p.model_copy(update=dict(
             min_len_px=min(p.min_len_px, p.small_min_len_px),
             min_points_per_edge=min(p.min_points_per_edge, p.small_min_points_per_edge),
             min_area_px=min(p.min_area_px, p.small_min_area_px)))
-        self._prm = _params_vector(p, diagonal_ratio)
-        self._prm_small = _params_vector(self._small, diagonal_ratio)
+        self._prm = _params_vector(p, diagonal_ratio, self.max_diagonal_shift)
+        self._prm_small = _params_vector(self._small, diagonal_ratio, self.max_diagonal_shift)
         self._seed: tuple[int, int, int] | None = None  # x, y, search radius (px)
         self._shape: ShapeTest | None = None
         self._loose = (self._prm, self._prm_small)  # the weak shape test's bounds, loosened
@@ -300,8 +307,9 @@ class RhombusExtractor:
                 max_off_normal_deg=min(p.max_off_normal_deg + slack, 89.0),
                 max_roll_deg=min(p.max_roll_deg + slack, 180.0),
                 max_pitch_deg=min(p.max_pitch_deg + slack, 90.0)))
-        self._loose = (_params_vector(loose(self.params), self.diagonal_ratio),
-                       _params_vector(loose(self._small), self.diagonal_ratio))
+        self._loose = (
+            _params_vector(loose(self.params), self.diagonal_ratio, self.max_diagonal_shift),
+            _params_vector(loose(self._small), self.diagonal_ratio, self.max_diagonal_shift))
 
     @property
     def intrinsics(self) -> CameraModel | None:
@@ -520,6 +528,10 @@ class RhombusExtractor:
 #: normalised by it average 2 on webcam renders (``tests/test_vertex_extractor.py``).
 COV_SCALE = 5.0
 COV_FLOOR_PX2 = 0.0004
+#: the diagonals of the rhombus at depth Z cross at most h / 2Z off their midpoints (h its
+#: longer half-diagonal); the depth at the image's corners is less than the distance: this
+#: covers up to 42 degrees off the optical axis (1 / cos 42)
+DIAGONAL_SHIFT_SLACK = 1.35
 #: the covariance of the mean of the column and the row scan's vertices: the scans' mean
 #: covariance scaled (their errors are partly independent) plus the square of their
 #: disagreement scaled; the shape test weighs the vertices by it, and ``covariance.reported``
@@ -536,7 +548,8 @@ GAP_COV_SCALE = 0.5
 MAX_ROWS_OFF_PX = 1.5
 
 
-def _params_vector(p: ExtractorParams, diagonal_ratio: float) -> np.ndarray:
+def _params_vector(p: ExtractorParams, diagonal_ratio: float, max_diagonal_shift: float
+                   ) -> np.ndarray:
     """The parameters as ``measure.measure`` takes them (its layout constants)."""
     prm = np.zeros(measure.N_PARAMS)
     prm[measure.MIN_LEN], prm[measure.DX], prm[measure.WINDOW] = p.min_len_px, p.dx, p.window
@@ -555,7 +568,7 @@ def _params_vector(p: ExtractorParams, diagonal_ratio: float) -> np.ndarray:
     prm[measure.MAX_OFF] = MAX_ROWS_OFF_PX if p.check_rows_instead else 0.0
     prm[measure.JOINT_ROWS] = p.joint_rows_instead
     prm[measure.SHADED_SPREAD] = p.shaded_spread
-    prm[measure.MAX_DIAGONAL_SHIFT] = p.max_diagonal_shift
+    prm[measure.MAX_DIAGONAL_SHIFT] = max_diagonal_shift
     return prm
 
 
@@ -581,8 +594,8 @@ def _reason(status: int, s: np.ndarray, prm: np.ndarray) -> str:
     if status == m.PERSPECTIVE:
         return (f"not the marker from the working distance: its diagonals cross "
                 f"{100 * s[m.DIAGONAL_SHIFT]:.0f} % of their length off their midpoints "
-                f"(at most {100 * prm[m.MAX_DIAGONAL_SHIFT]:.0f} %; a vertex cut off by "
-                f"something in front?)")
+                f"(at most {100 * prm[m.MAX_DIAGONAL_SHIFT]:.0f} % from nearest_view_m on; a "
+                f"vertex cut off by something in front?)")
     if status == m.UNCERTAIN:
         return f"vertex uncertainty too large ({s[m.SIGMA]:.2f} px, 1 sigma)"
     if status == m.ROWS_OFF:

@@ -111,7 +111,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
     updates = bus.subscribe(INTRINSICS, CameraIntrinsics, latest=True)
     await asyncio.to_thread(warm_up, params)  # compiled kernels ready before the first frame
     g = ctx.geometry
-    extractor = RhombusExtractor(params, g.marker_width_m / g.marker_height_m)
+    extractor = RhombusExtractor(params, geometry=g)
     follower = IntrinsicsFollower(extractor, g, log)
     asking = None
     if config.intrinsics is not None:
