@@ -202,8 +202,9 @@ class ExtractorParams(BaseModel):
         "at 15-80 cm reach 8.7 %); a vertex cut off by an arm's straight edge, taken for an "
         "edge, shifts them further")
     max_vertex_sigma_px: float = Field(
-        default=1.2, gt=0, description="a detection whose vertex uncertainty (1 sigma, "
-                                       "largest axis) exceeds this is refused")
+        default=1.2, gt=0, description="a detection whose line fits' vertex uncertainty (1 "
+        "sigma, largest axis) exceeds this is refused; the uncertainty reported with a found "
+        "one adds what the profiles across its edges show (covariance.py), and may exceed it")
     max_step_offset_px: float = Field(
         default=0.5, gt=0, description="an edge whose median profile crosses half way "
         "further than this inside its fitted line (1.6 times this beyond it), and further "
