@@ -204,17 +204,20 @@ def test_a_card_in_the_markers_own_ink_is_refused_for_its_shape():
 def test_the_diagonals_cross_off_their_midpoints_by_the_depth_difference():
     """lines.diagonal_shift: the rhombus at depth Z turned by a about its vertical axis (its
     horizontal half-diagonal w: its ends at Z -/+ w sin a) crosses w sin a / 2Z off the
-    horizontal diagonal's midpoint, exactly; the default bound holds every view from 15 cm."""
+    horizontal diagonal's midpoint, exactly (and h sin a / 2Z off the vertical one's, turned
+    about its horizontal axis); the default bound holds every view from 15 cm."""
     from services.vertex_extractor.lines import diagonal_shift
     cam, g = CameraModel.paper(), Geometry()
     w = g.marker_width_m / 2
+    h = g.marker_height_m / 2  # turned about its horizontal axis: the vertical diagonal
     for z, a in ((0.15, 70.0), (0.3, 40.0), (0.8, 10.0)):
-        T = marker_pose(z, cam.K[0, 2], cam.K[1, 2], cam, np.radians(a))
-        v = cam.project((T[:3, :3] @ g.marker_points().T).T + T[:3, 3])
-        assert diagonal_shift(v) == pytest.approx(w * np.sin(np.radians(a)) / (2 * z), rel=1e-9)
-    h = max(g.marker_width_m, g.marker_height_m) / 2
+        for azimuth, half in ((0.0, w), (np.pi / 2, h)):
+            T = marker_pose(z, cam.K[0, 2], cam.K[1, 2], cam, np.radians(a), azimuth)
+            v = cam.project((T[:3, :3] @ g.marker_points().T).T + T[:3, 3])
+            expected = half * np.sin(np.radians(a)) / (2 * z)
+            assert diagonal_shift(v) == pytest.approx(expected, rel=1e-9), (z, a, azimuth)
     bound = RhombusExtractor().max_diagonal_shift  # from 15 cm on (nearest_view_m)
-    assert h / (2 * 0.15) < bound < 0.2  # (turned about any axis, on the optical axis)
+    assert max(w, h) / (2 * 0.15) < bound < 0.2  # (turned about any axis, on the axis)
     big = Geometry(marker_width_m=0.1, marker_height_m=0.132)
     assert RhombusExtractor(geometry=big).max_diagonal_shift == pytest.approx(2 * bound)
 
