@@ -2,6 +2,9 @@
 refusing under each — shadows, an arm over an edge or a vertex, magenta things in view,
 steep and small views — with an honest per-vertex uncertainty."""
 
+import json
+from pathlib import Path
+
 import cv2
 import numpy as np
 import pytest
@@ -14,6 +17,10 @@ from services.sim.render import RenderStyle, render_view
 from services.sim.scenes import HARD_CONDITIONS, NO_MARKER, hard_views, marker_pose
 from services.sim.webcam import WebcamParams
 from services.vertex_extractor.extractor import ExtractorParams, RhombusExtractor
+from services.vertex_extractor.lines import diagonal_shift
+
+#: webcam-model frames kept as rendered (tests/data/hard_frames/README.md)
+HARD_FRAMES = Path(__file__).parent / "data" / "hard_frames"
 
 pytestmark = pytest.mark.skipif(not textures.have_photos(),
                                 reason="scikit-image (dev extra) ships the photographs")
@@ -206,7 +213,6 @@ def test_the_diagonals_cross_off_their_midpoints_by_the_depth_difference():
     horizontal half-diagonal w: its ends at Z -/+ w sin a) crosses w sin a / 2Z off the
     horizontal diagonal's midpoint, exactly (and h sin a / 2Z off the vertical one's, turned
     about its horizontal axis); the default bound holds every view from 15 cm."""
-    from services.vertex_extractor.lines import diagonal_shift
     cam, g = CameraModel.paper(), Geometry()
     w = g.marker_width_m / 2
     h = g.marker_height_m / 2  # turned about its horizontal axis: the vertical diagonal
@@ -229,11 +235,9 @@ def test_an_arms_edge_across_a_vertex_is_refused_by_where_the_diagonals_cross():
     21 % of their length off their midpoints, which no view from 15 cm gives (at most 11 %):
     that quadrilateral is refused, and the points again without the bar's notch in the
     outline give the marker."""
-    import json
-    from pathlib import Path
-    folder = Path(__file__).parent / "data" / "hard_frames"
-    img = cv2.imread(str(folder / "arm_over_a_vertex.png"))
-    truth = np.array(json.loads((folder / "arm_over_a_vertex.json").read_text())["vertices_px"])
+    img = cv2.imread(str(HARD_FRAMES / "arm_over_a_vertex.png"))
+    truth = np.array(json.loads((HARD_FRAMES / "arm_over_a_vertex.json").read_text())[
+        "vertices_px"])
     off = RhombusExtractor(ExtractorParams(nearest_view_m=0.01)).extract(img)  # (no bound)
     assert off.found and np.linalg.norm(off.vertices_px - truth, axis=1).max() > 10
     det = RhombusExtractor().extract(img)
