@@ -23,7 +23,9 @@ Where we depart from the paper, keeping its spirit:
   the marker moves no edge; where the inside level steps along an edge (the boundary crosses
   it) or no contrast is left (a clipped highlight, an occluder), the point is dropped; so is
   a point whose coverage sum and half-way crossing disagree (``scan._crossing_gap``: a
-  shaded strip of the rim inside its window, where a shadow's boundary meets the edge).
+  shaded strip of the rim inside its window, where a shadow's boundary meets the edge). A
+  shaded marker's inside level is read nearer its edges where they are sharp
+  (``shaded_inside_depth``, ``scan._sharpness``).
 - A glossy print's highlight: the walk goes on through its halo (the marker's colour plus
   white light, ``colour.is_lit_marker``), and edge points are left out where a run ends on
   the clipped core or the ink inside the window clips (``scan._at_highlight``,
@@ -163,6 +165,12 @@ class ExtractorParams(BaseModel):
         "the whole chain's being off by the shadow's gradient; in even light the chain's, "
         "where the local one is within 8 % of it (the JPEG's blocks move the local one "
         "about); 1 or more: never shaded (the spread is at most 1)")
+    shaded_inside_depth: int = Field(
+        default=scan.SHADED_DEPTH, ge=0, le=12, description="a shaded marker's inside level "
+        "is read this many rows inside each run's end, not just beyond the window, where its "
+        "edges are sharp (a shadow's gradient or boundary then lies between the level and "
+        "the edge less often; under blur beyond the window, as elsewhere); 0: beyond the "
+        "window")
     both_scans_under_highlight: bool = Field(
         default=True, description="a marker under a clipped highlight whose column and row "
         "lines both failed (a vertex or much of an edge washed out: too few points on an "
@@ -569,6 +577,7 @@ def _params_vector(p: ExtractorParams, diagonal_ratio: float, max_diagonal_shift
     prm[measure.MAX_OFF] = MAX_ROWS_OFF_PX if p.check_rows_instead else 0.0
     prm[measure.JOINT_ROWS] = p.joint_rows_instead
     prm[measure.SHADED_SPREAD] = p.shaded_spread
+    prm[measure.SHADED_DEPTH] = p.shaded_inside_depth
     prm[measure.MAX_DIAGONAL_SHIFT] = max_diagonal_shift
     return prm
 

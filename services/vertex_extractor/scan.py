@@ -38,6 +38,14 @@ CONTRAST_SNR = 8.0
 #: chain's mean is off by the shadow's gradient or step (webcam renders: soft shadows'
 #: median vertex error 0.23 -> 0.20 px, wrong frames fewer; unshaded markers as before)
 SHADED = 0.2
+#: a shaded marker's inside level is read this many rows inside each run's end (plus a steep
+#: edge's extra rows) instead of just beyond the window: a shadow's gradient or boundary
+#: then lies between the level and the edge less often (6 000 views each: hard shadow 65 ->
+#: 50 wrong, soft 44 -> 40; docs/measured.md). Only where the edges are sharp enough
+#: (``_sharpness``): blur's ramp reaches that deep (without that test, shaded markers under
+#: motion blur 8 -> 17 wrong of 3 000, and a shadow with defocus 3 px 0.28 -> 0.59 px off)
+SHADED_DEPTH = 4
+SHARP = 0.96  # least ``_sharpness`` of a shaded marker whose inside level is read nearer
 
 
 @njit(inline="always")
@@ -113,8 +121,8 @@ def find_seed(img: np.ndarray, sx: int, sy: int, radius: int, lut: np.ndarray, m
 @njit()
 def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
          lut: np.ndarray, m: np.ndarray, edge_mode: int = 1, outer: int = -1,
-         shaded_spread: float = SHADED) -> tuple[int, int, int, float, np.ndarray, np.ndarray,
-                                                np.ndarray]:
+         shaded_spread: float = SHADED, shaded_depth: int = SHADED_DEPTH
+         ) -> tuple[int, int, int, float, np.ndarray, np.ndarray, np.ndarray]:
     """Walk the marker's columns from the marker pixel (sx, sy) and measure its edges.
 
     Returns (status, blob area px, usable columns, contrast grey levels, U points (n, 2),
@@ -125,7 +133,9 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     LOW_CONTRAST (less than MIN_CONTRAST or CONTRAST_SNR x the inside's noise between inside
     and outside, linear x 255). ``shaded_spread``: a marker whose columns' centres spread by
     more than this share of the brightest (``_levels``) is shaded, and each edge point then
-    takes its local inside level (``SHADED``).
+    takes its local inside level (``SHADED``), read ``shaded_depth`` rows inside the run's
+    end where its edges are sharp (``SHADED_DEPTH``; 0: just beyond the window, as
+    elsewhere).
     """
     H, W = img.shape[0], img.shape[1]
     empty = np.empty((0, 2))
@@ -199,6 +209,9 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     # one edge point's window scores: window + outer + 2 ext rows, ext <= 2 window
     rows = np.empty(window + outer + 4 * window + 2)
     exts = np.zeros((2, n), np.int64)
+    # a shaded marker with sharp edges: its inside level nearer the edge (``SHADED_DEPTH``)
+    near = shaded_depth > 0 and spread > shaded_spread and \
+        _sharpness(img, a, n, dx, top, bottom, window, shaded_depth, lut, w) >= SHARP
     colour = np.zeros((2, n + 1, 4))  # prefix sums of the local inside colour B, G, R, count
     for i in range(n):
         x = a + i * dx
@@ -219,8 +232,9 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
             out = -1 if side == 0 else 1
             for c in range(4):
                 colour[side, i + 1, c] = colour[side, i, c]
+            depth = (shaded_depth if near else window + 1) + ext
             for k in range(LOCAL_ROWS):
-                r = end - out * (window + ext + 1 + k)
+                r = end - out * (depth + k)
                 if (r - mid) * out < 0:  # past the middle row: stay on this edge's half
                     r = mid
                 if is_lit_marker(img, r, x, lut, m, halo_chroma, True):  # not hidden or clipped
@@ -290,6 +304,27 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
                 d[i, 1] = _edge(img, x, bottom[x], 1, window + ext, outer + ext, s_in, s_out,
                                 edge_mode, lut, w, wl, local, rows)
     return OK, area, n, contrast, u, d, box
+
+
+@njit()
+def _sharpness(img, a, n, dx, top, bottom, window, depth, lut, w):  # type: ignore[no-untyped-def]
+    """Whether the marker's inside level can be read ``depth`` rows inside its runs' ends: the
+    median, over the columns' run ends, of the score there over the score in the middle of
+    the rows just beyond the window (``window`` + 2 rows in). Near 1 where the edges are
+    sharp (a shadow's gradient or boundary in between goes either way: the median holds);
+    less where blur's ramp reaches that deep (motion blur, defocus)."""
+    ratio = np.empty(2 * n)
+    k = 0
+    for i in range(n):
+        x = a + i * dx
+        if bottom[x] - top[x] + 1 < 2 * (window + 2):  # (both rows on this edge's half)
+            continue
+        for end, out in ((top[x], -1), (bottom[x], 1)):
+            deep = score(img, end - out * (window + 2), x, lut, w)
+            if deep > 0.0:
+                ratio[k] = score(img, end - out * depth, x, lut, w) / deep
+                k += 1
+    return np.median(ratio[:k]) if k > 0 else 0.0
 
 
 @njit(inline="always")
