@@ -16,6 +16,7 @@ from services.sim.hazards import Hazards
 from services.sim.render import RenderStyle, render_view
 from services.sim.scenes import HARD_CONDITIONS, NO_MARKER, hard_views, marker_pose
 from services.sim.webcam import WebcamParams
+from services.vertex_extractor import measure
 from services.vertex_extractor.extractor import ExtractorParams, RhombusExtractor
 from services.vertex_extractor.lines import diagonal_shift
 
@@ -244,6 +245,29 @@ def test_an_arms_edge_across_a_vertex_is_refused_by_where_the_diagonals_cross():
     error = np.linalg.norm(det.vertices_px - truth, axis=1)
     sigma = np.sqrt(np.linalg.eigvalsh(det.vertices_cov_px2).max(axis=1))
     assert error.max() < 0.5 and np.all(error < 3 * sigma), (error, sigma)
+
+
+def test_a_narrow_second_try_takes_nothing_from_the_rows_alone():
+    """A webcam frame (tests/data/hard_frames) with a hard shadow's boundary along the upper
+    right edge: refused (that edge is not one clean step), and tried again with the narrow
+    window, whose column lines fail; the rows measured instead came out 4.6 px off at a
+    reported 0.9 px, and nothing checked them. The narrow try takes no marker measured along
+    the rows alone (7 of 37 such were wrong on 45 000 hard-condition views): the first
+    refusal stands."""
+    img = cv2.imread(str(HARD_FRAMES / "shadow_rows_on_the_narrow_try.png"))
+    truth = np.array(json.loads((HARD_FRAMES / "shadow_rows_on_the_narrow_try.json")
+                                .read_text())["vertices_px"])
+    ex = RhombusExtractor()
+    det = ex.extract(img)
+    assert not det.found and "upper right edge is not a clean step" in det.reason, det.reason
+    narrow = ex._prm.copy()  # the narrow try's own measurement, as _extract_from makes it
+    narrow[measure.WINDOW] = ex.params.narrow_window
+    narrow[measure.UNDER_HIGHLIGHT] = 0.0
+    cx, cy = (int(c) for c in truth.mean(axis=0))
+    status, stats, v, _, _, _ = measure.measure(img, cx, cy, 8, ex.params.colour.lut,
+                                                ex.params.colour.vector, narrow)
+    assert status == measure.FOUND and stats[measure.ROWS_INSTEAD] == 1.0
+    assert np.linalg.norm(v - truth, axis=1).max() > 2.0
 
 
 def test_steep_and_small_markers_are_found():

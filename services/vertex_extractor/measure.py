@@ -58,11 +58,12 @@ HIGHLIGHT_MIN_POINTS = 2
 # the figures returned beside the status
 (AREA, COLUMNS, CONTRAST, RESIDUAL, QUAD_AREA, ANGLE_MIN, ANGLE_MAX, TILT, ROLL, PITCH,
  SIGMA, GAP, AREA_RATIO, SEED_X, SEED_Y, SEED_RADIUS, CHECKED, COLUMNS_UNSURE, OFF,
- DIAGONAL_SHIFT, N_STATS) = range(21)
+ DIAGONAL_SHIFT, ROWS_INSTEAD, N_STATS) = range(22)
 # CHECKED: 1 where the row scan agreed with the column scan; COLUMNS_UNSURE: 1 where the
 # column scan alone was too uncertain and the rows were asked (``fuse``); OFF: how far the
 # rows' lines are off the column scan's edge points where the rows were used instead;
-# DIAGONAL_SHIFT: how far the diagonals cross off their midpoints (``lines.diagonal_shift``)
+# DIAGONAL_SHIFT: how far the diagonals cross off their midpoints (``lines.diagonal_shift``);
+# ROWS_INSTEAD: 1 where the rows were measured instead of the columns (``_instead``)
 
 
 @njit(inline="always")
@@ -477,6 +478,7 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
                 rows = _instead(img, u, d, u_rows, d_rows, v, cov, prm, stats_rows)
             if rows == FOUND:
                 _seed(v, stats_rows)
+                stats_rows[ROWS_INSTEAD] = 1.0
                 return FOUND, stats_rows, v, cov, u_rows, d_rows
             if rows == ROWS_OFF:
                 return ROWS_OFF, stats_rows, v, cov, u_rows, d_rows
