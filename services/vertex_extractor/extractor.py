@@ -169,8 +169,8 @@ class ExtractorParams(BaseModel):
         default=scan.SHADED_DEPTH, ge=0, le=12, description="a shaded marker's inside level "
         "is read this many rows inside each run's end, not just beyond the window, where its "
         "edges are sharp (a shadow's gradient or boundary then lies between the level and "
-        "the edge less often; under blur beyond the window, as elsewhere); 0: beyond the "
-        "window")
+        "the edge less often; under blur beyond the window, as elsewhere); 0, or not less "
+        "than the window + 1: beyond the window")
     both_scans_under_highlight: bool = Field(
         default=True, description="a marker under a clipped highlight whose column and row "
         "lines both failed (a vertex or much of an edge washed out: too few points on an "
@@ -433,8 +433,9 @@ class RhombusExtractor:
             narrow[measure.WINDOW] = p.narrow_window
             narrow[measure.UNDER_HIGHLIGHT] = 0.0  # a shadow's bias, not a highlight's gaps
             # a marker whose column scan alone was too uncertain needs the rows' agreement;
-            # none is taken from the rows alone (measured instead of the columns: unchecked
-            # by the other scan, 7 of 37 such were wrong on 45 000 views of hard conditions)
+            # none is taken that the rows measured instead of the columns (checked only
+            # against the columns' edge points: 7 of 37 such were more than 2 px off on 45 000
+            # views of hard conditions)
             needs_rows = measured[1][measure.COLUMNS_UNSURE] > 0
             measured = measure.measure(image, *seed, lut, model, narrow)
             if measured[1][measure.ROWS_INSTEAD] == 0 and (

@@ -134,8 +134,8 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     and outside, linear x 255). ``shaded_spread``: a marker whose columns' centres spread by
     more than this share of the brightest (``_levels``) is shaded, and each edge point then
     takes its local inside level (``SHADED``), read ``shaded_depth`` rows inside the run's
-    end where its edges are sharp (``SHADED_DEPTH``; 0: just beyond the window, as
-    elsewhere).
+    end where its edges are sharp and that is nearer than just beyond the window
+    (``SHADED_DEPTH``; 0: just beyond the window, as elsewhere).
     """
     H, W = img.shape[0], img.shape[1]
     empty = np.empty((0, 2))
@@ -209,8 +209,9 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     # one edge point's window scores: window + outer + 2 ext rows, ext <= 2 window
     rows = np.empty(window + outer + 4 * window + 2)
     exts = np.zeros((2, n), np.int64)
-    # a shaded marker with sharp edges: its inside level nearer the edge (``SHADED_DEPTH``)
-    near = shaded_depth > 0 and spread > shaded_spread and \
+    # a shaded marker with sharp edges: its inside level nearer the edge (``SHADED_DEPTH``;
+    # a narrow window's own rows may be as near: then as elsewhere)
+    nearer = 0 < shaded_depth <= window and spread > shaded_spread and \
         _sharpness(img, a, n, dx, top, bottom, window, shaded_depth, lut, w) >= SHARP
     colour = np.zeros((2, n + 1, 4))  # prefix sums of the local inside colour B, G, R, count
     for i in range(n):
@@ -232,7 +233,7 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
             out = -1 if side == 0 else 1
             for c in range(4):
                 colour[side, i + 1, c] = colour[side, i, c]
-            depth = (shaded_depth if near else window + 1) + ext
+            depth = (shaded_depth if nearer else window + 1) + ext
             for k in range(LOCAL_ROWS):
                 r = end - out * (depth + k)
                 if (r - mid) * out < 0:  # past the middle row: stay on this edge's half
@@ -317,7 +318,7 @@ def _sharpness(img, a, n, dx, top, bottom, window, depth, lut, w):  # type: igno
     k = 0
     for i in range(n):
         x = a + i * dx
-        if bottom[x] - top[x] + 1 < 2 * (window + 2):  # (both rows on this edge's half)
+        if bottom[x] - top[x] + 1 < 2 * (window + 2):  # (on this edge's half, or a row past)
             continue
         for end, out in ((top[x], -1), (bottom[x], 1)):
             deep = score(img, end - out * (window + 2), x, lut, w)
