@@ -23,6 +23,14 @@ from services.vertex_extractor.lines import diagonal_shift
 #: webcam-model frames kept as rendered (tests/data/hard_frames/README.md)
 HARD_FRAMES = Path(__file__).parent / "data" / "hard_frames"
 
+
+def _kept_frame(name: str) -> tuple[np.ndarray, np.ndarray]:
+    """A frame kept in ``HARD_FRAMES`` and its true vertices (px, in the frame)."""
+    image = cv2.imread(str(HARD_FRAMES / f"{name}.png"))
+    truth = json.loads((HARD_FRAMES / f"{name}.json").read_text())["vertices_px"]
+    return image, np.array(truth)
+
+
 pytestmark = pytest.mark.skipif(not textures.have_photos(),
                                 reason="scikit-image (dev extra) ships the photographs")
 
@@ -236,9 +244,7 @@ def test_an_arms_edge_across_a_vertex_is_refused_by_where_the_diagonals_cross():
     21 % of their length off their midpoints, which no view from 15 cm gives (at most 11 %):
     that quadrilateral is refused, and the points again without the bar's notch in the
     outline give the marker."""
-    img = cv2.imread(str(HARD_FRAMES / "arm_over_a_vertex.png"))
-    truth = np.array(json.loads((HARD_FRAMES / "arm_over_a_vertex.json").read_text())[
-        "vertices_px"])
+    img, truth = _kept_frame("arm_over_a_vertex")
     off = RhombusExtractor(ExtractorParams(nearest_view_m=0.01)).extract(img)  # (no bound)
     assert off.found and np.linalg.norm(off.vertices_px - truth, axis=1).max() > 10
     det = RhombusExtractor().extract(img)
@@ -254,15 +260,11 @@ def test_a_narrow_second_try_takes_nothing_from_the_rows_alone():
     reported 0.9 px, close to the columns' measured edge points (0.6 px) and not
     cross-checked. The narrow try takes no marker measured along the rows instead (7 of 37
     such were more than 2 px off on 45 000 hard-condition views): the first refusal stands."""
-    img = cv2.imread(str(HARD_FRAMES / "shadow_rows_on_the_narrow_try.png"))
-    truth = np.array(json.loads((HARD_FRAMES / "shadow_rows_on_the_narrow_try.json")
-                                .read_text())["vertices_px"])
+    img, truth = _kept_frame("shadow_rows_on_the_narrow_try")
     ex = RhombusExtractor()
     det = ex.extract(img)
     assert not det.found and "edge is not a clean step" in det.reason, det.reason
-    narrow = ex._prm.copy()  # the narrow try's own measurement, as _extract_from makes it
-    narrow[measure.WINDOW] = ex.params.narrow_window
-    narrow[measure.UNDER_HIGHLIGHT] = 0.0
+    narrow = ex._narrow(ex._prm)  # the narrow try's own measurement
     cx, cy = (int(c) for c in truth.mean(axis=0))
     status, stats, v, _, _, _ = measure.measure(img, cx, cy, 8, ex.params.colour.lut,
                                                 ex.params.colour.vector, narrow)

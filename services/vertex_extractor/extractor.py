@@ -429,9 +429,7 @@ class RhombusExtractor:
             measured = measure.measure(image, *seed, lut, model, prm)
         det, biased = self._judge(image, measured, prm, test, tracked)
         if biased and prm[measure.WINDOW] > p.narrow_window:
-            narrow = prm.copy()
-            narrow[measure.WINDOW] = p.narrow_window
-            narrow[measure.UNDER_HIGHLIGHT] = 0.0  # a shadow's bias, not a highlight's gaps
+            narrow = self._narrow(prm)
             # a marker whose column scan alone was too uncertain needs the rows' agreement;
             # none is taken that the rows measured instead of the columns (checked only
             # against the columns' edge points: 7 of 37 such were more than 2 px off on 45 000
@@ -454,6 +452,14 @@ class RhombusExtractor:
                 if again.found:
                     return again
         return det
+
+    def _narrow(self, prm: np.ndarray) -> np.ndarray:
+        """The parameters ``prm`` of a second try with the narrow window (``narrow_window``),
+        for a shadow's bias, not a highlight's gaps."""
+        narrow = prm.copy()
+        narrow[measure.WINDOW] = self.params.narrow_window
+        narrow[measure.UNDER_HIGHLIGHT] = 0.0
+        return narrow
 
     def _judge(self, image: np.ndarray, measured: tuple, prm: np.ndarray,
                test: ShapeTest | None, tracked: bool) -> tuple[Detection, bool]:

@@ -309,8 +309,9 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
 
 @njit()
 def _sharpness(img, a, n, dx, top, bottom, window, depth, lut, w):  # type: ignore[no-untyped-def]
-    """Whether the marker's inside level can be read ``depth`` rows inside its runs' ends: the
-    median, over the columns' run ends, of the score there over the score in the middle of
+    """How sharp the marker's edges are for its inside level read ``depth`` rows inside its
+    runs' ends: the median, over the columns' run ends, of the score there over the score in
+    the middle of
     the rows just beyond the window (``window`` + 2 rows in). Near 1 where the edges are
     sharp (a shadow's gradient or boundary in between goes either way: the median holds);
     less where blur's ramp reaches that deep (motion blur, defocus)."""
