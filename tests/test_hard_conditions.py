@@ -27,6 +27,7 @@ HARD_FRAMES = Path(__file__).parent / "data" / "hard_frames"
 def _kept_frame(name: str) -> tuple[np.ndarray, np.ndarray]:
     """A frame kept in ``HARD_FRAMES`` and its true vertices (px, in the frame)."""
     image = cv2.imread(str(HARD_FRAMES / f"{name}.png"))
+    assert image is not None, f"{HARD_FRAMES / name}.png is missing or unreadable"
     truth = json.loads((HARD_FRAMES / f"{name}.json").read_text())["vertices_px"]
     return image, np.array(truth)
 
