@@ -25,7 +25,9 @@ Where we depart from the paper, keeping its spirit:
   a point whose coverage sum and half-way crossing disagree (``scan._crossing_gap``: a
   shaded strip of the rim inside its window, where a shadow's boundary meets the edge). A
   shaded marker's inside level is read nearer its edges where they are sharp
-  (``shaded_inside_depth``, ``scan._sharpness``).
+  (``shaded_inside_depth``, ``scan._sharpness``), and there follows the light's steady
+  change across each edge, a soft shadow's penumbra (``shaded_gradient``,
+  ``scan._gradient``).
 - A glossy print's highlight: the walk goes on through its halo (the marker's colour plus
   white light, ``colour.is_lit_marker``), and edge points are left out where a run ends on
   the clipped core or the ink inside the window clips (``scan._at_highlight``,
@@ -171,6 +173,11 @@ class ExtractorParams(BaseModel):
         "edges are sharp (a shadow's gradient or boundary then lies between the level and "
         "the edge less often; under blur beyond the window, as elsewhere); 0, or not less "
         "than the window + 1: beyond the window")
+    shaded_gradient: bool = Field(
+        default=True, description="where a shaded marker's inside level is read nearer its "
+        "edges, it also follows the light's steady change across each edge (a soft "
+        "shadow's penumbra), from two deeper bands of rows; false: one level for the "
+        "whole window")
     both_scans_under_highlight: bool = Field(
         default=True, description="a marker under a clipped highlight whose column and row "
         "lines both failed (a vertex or much of an edge washed out: too few points on an "
@@ -588,6 +595,7 @@ def _params_vector(p: ExtractorParams, diagonal_ratio: float, max_diagonal_shift
     prm[measure.JOINT_ROWS] = p.joint_rows_instead
     prm[measure.SHADED_SPREAD] = p.shaded_spread
     prm[measure.SHADED_DEPTH] = p.shaded_inside_depth
+    prm[measure.SHADED_GRADIENT] = p.shaded_gradient
     prm[measure.MAX_DIAGONAL_SHIFT] = max_diagonal_shift
     return prm
 

@@ -54,7 +54,7 @@ HIGHLIGHT_MIN_POINTS = 2
  COV_FLOOR, MIN_ANGLE, MAX_RESIDUAL, DIAGONAL_RATIO, MAX_OFF_NORMAL, MAX_ROLL, MAX_PITCH,
  MAX_SIGMA, CROSS_CHECK, MAX_GAP, MEAN_COV_SCALE, GAP_COV_SCALE, FUSE, JOINT, MAX_OFF,
  JOINT_ROWS, UNDER_HIGHLIGHT, SHADED_SPREAD, MAX_DIAGONAL_SHIFT, SHADED_DEPTH,
- N_PARAMS) = range(30)
+ SHADED_GRADIENT, N_PARAMS) = range(31)
 # the figures returned beside the status
 (AREA, COLUMNS, CONTRAST, RESIDUAL, QUAD_AREA, ANGLE_MIN, ANGLE_MAX, TILT, ROLL, PITCH,
  SIGMA, GAP, AREA_RATIO, SEED_X, SEED_Y, SEED_RADIUS, CHECKED, COLUMNS_UNSURE, OFF,
@@ -311,7 +311,8 @@ def _row_scan(img, sx, sy, box, lut, m, prm):  # type: ignore[no-untyped-def]
     roi = img[y0:y1 + 1, x0:x1 + 1].transpose(1, 0, 2)
     status, area, n, contrast, u, d, _ = scan.scan(
         roi, sy - y0, sx - x0, int(prm[MIN_LEN]), int(prm[DX]), window, lut, m,
-        int(prm[EDGE]), outer, prm[SHADED_SPREAD], int(prm[SHADED_DEPTH]))
+        int(prm[EDGE]), outer, prm[SHADED_SPREAD], int(prm[SHADED_DEPTH]),
+        prm[SHADED_GRADIENT] > 0)
     return status, area, n, contrast, u, d, roi, x0, y0
 
 
@@ -439,7 +440,8 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
     # compiled scan for both (about half the first compile, no slower)
     status, area, n, contrast, u, d, box = scan.scan(
         img[0:H, 0:W], sx, sy, int(prm[MIN_LEN]), int(prm[DX]), window, lut, m,
-        int(prm[EDGE]), outer, prm[SHADED_SPREAD], int(prm[SHADED_DEPTH]))
+        int(prm[EDGE]), outer, prm[SHADED_SPREAD], int(prm[SHADED_DEPTH]),
+        prm[SHADED_GRADIENT] > 0)
     found, u, d = _judge(img, status, area, n, contrast, u, d, W, H, prm, -1, -1, stats, v,
                          cov)
     if found == UNCERTAIN and prm[FUSE] > 0:  # the rows may know the vertex better
