@@ -252,28 +252,13 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
             ext = max(min(int(STEEP * slope + 0.5), 2 * window, room, border), 0)
             exts[side, i] = ext
             out = -1 if side == 0 else 1
-            for c in range(4):
-                colour[side, i + 1, c] = colour[side, i, c]
             depth = (shaded_depth if nearer else window + 1) + ext
-            for k in range(LOCAL_ROWS):
-                r = end - out * (depth + k)
-                if (r - mid) * out < 0:  # past the middle row: stay on this edge's half
-                    r = mid
-                if is_lit_marker(img, r, x, lut, m, halo_chroma, True):  # not hidden or clipped
-                    for c in range(3):
-                        colour[side, i + 1, c] += lut[img[r, x, c]]
-                    colour[side, i + 1, 3] += 1.0
+            _band(img, x, end, out, depth, mid, True, lut, m, halo_chroma, colour[side, i],
+                  colour[side, i + 1])
             if gradient:
                 for band in range(2):
-                    for c in range(4):
-                        deeper[band, side, i + 1, c] = deeper[band, side, i, c]
-                    for k in range(LOCAL_ROWS):
-                        r = end - out * (depth + (band + 1) * GRADIENT_GAP + k)
-                        if (r - mid) * out >= 0 and \
-                                is_lit_marker(img, r, x, lut, m, halo_chroma, True):
-                            for c in range(3):
-                                deeper[band, side, i + 1, c] += lut[img[r, x, c]]
-                            deeper[band, side, i + 1, 3] += 1.0
+                    _band(img, x, end, out, depth + (band + 1) * GRADIENT_GAP, mid, False, lut,
+                          m, halo_chroma, deeper[band, side, i], deeper[band, side, i + 1])
     local = np.empty(3)
     deep = np.zeros((2, 3))  # the deeper bands' local colour (B, G, R)
     # a shaded marker (its columns' centres spread by more than ``shaded_spread``, by default
@@ -351,6 +336,26 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
                 d[i, 1] = _edge(img, x, bottom[x], 1, window + ext, outer + ext, s_in, s_out,
                                 edge_mode, lut, w, wl, local, rows, deep, level_row)
     return OK, area, n, contrast, u, d, box
+
+
+@njit(inline="always")
+def _band(img, x, end, out, depth, mid, clamp, lut, m, halo_chroma, prev, cur):  # type: ignore[no-untyped-def]
+    """A prefix sum's next entry: ``cur`` (B, G, R, count) = ``prev`` plus column x's
+    marker pixels (not hidden or clipped) in the ``LOCAL_ROWS`` rows from ``depth`` rows
+    inside the run's end ``end`` (``out``: -1 upper edge, +1 lower). Rows past the middle
+    row ``mid`` stay on this edge's half: read at ``mid`` where ``clamp``, else left out."""
+    for c in range(4):
+        cur[c] = prev[c]
+    for k in range(LOCAL_ROWS):
+        r = end - out * (depth + k)
+        if (r - mid) * out < 0:
+            if not clamp:
+                continue
+            r = mid
+        if is_lit_marker(img, r, x, lut, m, halo_chroma, True):
+            for c in range(3):
+                cur[c] += lut[img[r, x, c]]
+            cur[3] += 1.0
 
 
 @njit()
