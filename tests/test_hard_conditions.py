@@ -17,7 +17,11 @@ from services.sim.render import RenderStyle, render_view
 from services.sim.scenes import HARD_CONDITIONS, NO_MARKER, hard_views, marker_pose
 from services.sim.webcam import WebcamParams
 from services.vertex_extractor import measure
-from services.vertex_extractor.extractor import ExtractorParams, RhombusExtractor
+from services.vertex_extractor.extractor import (
+    ExtractorParams,
+    RhombusExtractor,
+    sharpest_corner_deg,
+)
 from services.vertex_extractor.lines import diagonal_shift
 
 #: webcam-model frames kept as rendered (tests/data/hard_frames/README.md)
@@ -287,6 +291,39 @@ def test_steep_views_are_found_through_glancing_columns_and_sharp_vertices():
     (the vertex test refused clean views). 7 of these 75 views were refused so; now none."""
     errors, wrong, total, _ = _run("steep: 55-70 deg", 75, seed=11)
     assert wrong == 0 and len(errors) >= total - 1, (wrong, len(errors), total)
+
+
+def test_the_corner_limit_follows_the_deployments_marker():
+    """The sharpest plausible corner comes from the marker's own shape: 2 atan(short / long
+    diagonal x cos(max_off_normal_deg)), x 0.8 for perspective. A fixed 25 deg refused a tall
+    6 x 10 cm marker seen 68-70 deg off its normal ("implausible corner angles"): its own
+    limit finds those views, and takes nothing from marker-less frames of pink things."""
+    assert sharpest_corner_deg(1.0, 0.0) == pytest.approx(90.0)
+    assert sharpest_corner_deg(0.6, 60.0) == pytest.approx(sharpest_corner_deg(1 / 0.6, 60.0))
+    assert sharpest_corner_deg(0.6, 60.0) == pytest.approx(np.degrees(2 * np.arctan(0.3)))
+    assert RhombusExtractor().min_angle_deg == pytest.approx(17.7, abs=0.1)
+    assert RhombusExtractor(ExtractorParams(min_angle_deg=25.0)).min_angle_deg == 25.0
+    tall = Geometry(marker_width_m=0.06, marker_height_m=0.10)
+    fixed = RhombusExtractor(ExtractorParams(min_angle_deg=25.0), geometry=tall)
+    own = RhombusExtractor(geometry=tall)
+    assert own.min_angle_deg == pytest.approx(14.1, abs=0.1)
+    views = [v.rendered for v in hard_views("steep: 55-70 deg", 60, seed=31, geometry=tall)]
+    views = [r for r in views if r.marker_visible and r.vertices_px is not None]
+    refused_for_angles = 0
+    for r in views:
+        fixed.reset()
+        before = fixed.extract(r.image)
+        if before.found or "corner angles" not in before.reason:
+            continue
+        refused_for_angles += 1
+        own.reset()
+        det = own.extract(r.image)
+        assert det.found, det.reason
+        assert np.linalg.norm(det.vertices_px - r.vertices_px, axis=1).max() < 2.0  # not wrong
+    assert refused_for_angles >= 2, refused_for_angles  # (3 of these 60)
+    for v in hard_views(NO_MARKER, 40, seed=5, geometry=tall):
+        own.reset()
+        assert not own.extract(v.rendered.image).found
 
 
 def test_a_small_markers_second_try_reads_its_short_chords_with_a_narrow_window():

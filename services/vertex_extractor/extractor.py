@@ -102,6 +102,7 @@ cross-checked, and a shadow's boundary near a vertex can still move both scans.
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import Literal
 
@@ -196,8 +197,11 @@ class ExtractorParams(BaseModel):
         "lines alone")
     small_min_area_px: float = Field(
         default=120.0, gt=0, description="min_area_px on the small markers' second try (px²)")
-    min_angle_deg: float = Field(default=25.0, gt=0, lt=90,
-                                 description="sharper corners are implausible")
+    min_angle_deg: float | None = Field(
+        default=None, gt=0, lt=90, description="sharper corners are implausible (deg); "
+        "unset: the marker's own sharpest corner seen max_off_normal_deg off its normal, "
+        "x 0.8 for perspective (17.7 deg for the default 5.0 x 6.6 cm marker; a fixed 25 deg "
+        "refused a 6 x 10 cm marker's views from 68 deg)")
     max_off_normal_deg: float = Field(
         default=75.0, gt=0, lt=90, description="views further off the marker's normal are "
         "refused (the quadrilateral is then more likely something else)")
@@ -298,13 +302,16 @@ class RhombusExtractor:
         #: midpoints (``lines.diagonal_shift``), from the marker seen from ``nearest_view_m``
         self.max_diagonal_shift = min(DIAGONAL_SHIFT_SLACK * 0.5 * max(
             g.marker_width_m, g.marker_height_m) / (2.0 * self.params.nearest_view_m), 0.5)
+        #: corners sharper than this (deg) are implausible
+        self.min_angle_deg = self.params.min_angle_deg or CORNER_SLACK * sharpest_corner_deg(
+            diagonal_ratio, self.params.max_off_normal_deg)
         p = self.params  # a small marker's second chance: shorter chords, fewer points
         self._small = p.model_copy(update=dict(
             min_len_px=min(p.min_len_px, p.small_min_len_px),
             min_points_per_edge=min(p.min_points_per_edge, p.small_min_points_per_edge),
             min_area_px=min(p.min_area_px, p.small_min_area_px)))
-        self._prm = _params_vector(p, diagonal_ratio, self.max_diagonal_shift)
-        self._prm_small = _params_vector(self._small, diagonal_ratio, self.max_diagonal_shift)
+        self._prm = self._vector(p)
+        self._prm_small = self._vector(self._small)
         self._seed: tuple[int, int, int] | None = None  # x, y, search radius (px)
         self._shape: ShapeTest | None = None
         self._loose = (self._prm, self._prm_small)  # the weak shape test's bounds, loosened
@@ -323,9 +330,12 @@ class RhombusExtractor:
                 max_off_normal_deg=min(p.max_off_normal_deg + slack, 89.0),
                 max_roll_deg=min(p.max_roll_deg + slack, 180.0),
                 max_pitch_deg=min(p.max_pitch_deg + slack, 90.0)))
-        self._loose = (
-            _params_vector(loose(self.params), self.diagonal_ratio, self.max_diagonal_shift),
-            _params_vector(loose(self._small), self.diagonal_ratio, self.max_diagonal_shift))
+        self._loose = (self._vector(loose(self.params)), self._vector(loose(self._small)))
+
+    def _vector(self, p: ExtractorParams) -> np.ndarray:
+        """``p`` as ``measure.measure`` takes it, with this deployment's shape limits."""
+        return _params_vector(p, self.diagonal_ratio, self.max_diagonal_shift,
+                              self.min_angle_deg)
 
     @property
     def intrinsics(self) -> CameraModel | None:
@@ -538,7 +548,7 @@ class RhombusExtractor:
         if not ok:
             return _miss("parallel edges: not a rhombus", tracked)
         verdict, quad_area, amin, amax = lines.check_rhombus(v, 0.0, 0.0, W, H,
-                                                             p.min_angle_deg, np.inf)
+                                                             self.min_angle_deg, np.inf)
         if verdict not in (lines.PLAUSIBLE, lines.AREA_MISMATCH):
             return _miss(_verdicts[verdict].format(residual=0.0, area=quad_area, blob=0,
                                                    amin=amin, amax=amax), tracked)
@@ -562,6 +572,19 @@ DIAGONAL_SHIFT_SLACK = 1.35
 #: covariance scaled (their errors are partly independent) plus the square of their
 #: disagreement scaled; the shape test weighs the vertices by it, and ``covariance.reported``
 #: makes it the one reported (``tests/test_hard_conditions.py``)
+#: the sharpest corner the marker can show (``sharpest_corner_deg``) is allowed this much
+#: sharper still: perspective at the nearest view and the fit's noise on a thin marker
+CORNER_SLACK = 0.8
+
+
+def sharpest_corner_deg(diagonal_ratio: float, off_normal_deg: float) -> float:
+    """The sharpest corner (deg) of a rhombus whose diagonals' ratio is ``diagonal_ratio``,
+    seen ``off_normal_deg`` off its normal about either diagonal (weak perspective): turned
+    about its longer diagonal, the shorter one shrinks by the cosine."""
+    short = min(diagonal_ratio, 1.0 / diagonal_ratio)
+    return math.degrees(2.0 * math.atan(short * math.cos(math.radians(off_normal_deg))))
+
+
 MEAN_COV_SCALE = 0.4
 #: check the column scan against a row scan of the same marker (about twice the time; blur
 #: and shadows bias one of them) and refuse a vertex disagreement beyond this (px)
@@ -574,8 +597,8 @@ GAP_COV_SCALE = 0.5
 MAX_ROWS_OFF_PX = 1.5
 
 
-def _params_vector(p: ExtractorParams, diagonal_ratio: float, max_diagonal_shift: float
-                   ) -> np.ndarray:
+def _params_vector(p: ExtractorParams, diagonal_ratio: float, max_diagonal_shift: float,
+                   min_angle_deg: float) -> np.ndarray:
     """The parameters as ``measure.measure`` takes them (its layout constants)."""
     prm = np.zeros(measure.N_PARAMS)
     prm[measure.MIN_LEN], prm[measure.DX], prm[measure.WINDOW] = p.min_len_px, p.dx, p.window
@@ -583,7 +606,7 @@ def _params_vector(p: ExtractorParams, diagonal_ratio: float, max_diagonal_shift
     prm[measure.MIN_AREA], prm[measure.MIN_POINTS] = p.min_area_px, p.min_points_per_edge
     prm[measure.MAX_OUTSIDE_SHARE] = p.max_outside_share
     prm[measure.COV_SCALE], prm[measure.COV_FLOOR] = COV_SCALE, COV_FLOOR_PX2
-    prm[measure.MIN_ANGLE], prm[measure.MAX_RESIDUAL] = p.min_angle_deg, p.max_residual_px
+    prm[measure.MIN_ANGLE], prm[measure.MAX_RESIDUAL] = min_angle_deg, p.max_residual_px
     prm[measure.DIAGONAL_RATIO] = diagonal_ratio
     prm[measure.MAX_OFF_NORMAL], prm[measure.MAX_ROLL] = p.max_off_normal_deg, p.max_roll_deg
     prm[measure.MAX_PITCH], prm[measure.MAX_SIGMA] = p.max_pitch_deg, p.max_vertex_sigma_px
