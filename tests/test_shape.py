@@ -167,14 +167,21 @@ def test_the_service_takes_the_intrinsics_from_the_bus(router, make_bus, tmp_pat
             seq = 0
 
             async def send(image: np.ndarray) -> MarkerVertices:
+                # a frame may be dropped on a loaded machine (frames are sent best-effort,
+                # as a camera's are): sent again, with a new sequence number, up to 3 times
                 nonlocal seq
-                seq += 1
-                header, payload = encode_frame(image, seq, 10**18 + seq)
-                bus.put_frame(header, payload)
-                while True:
-                    msg = await out.recv(timeout=30)
-                    if msg.seq == seq:
-                        return msg
+                for _ in range(3):
+                    seq += 1
+                    header, payload = encode_frame(image, seq, 10**18 + seq)
+                    bus.put_frame(header, payload)
+                    try:
+                        while True:
+                            msg = await out.recv(timeout=15)
+                            if msg.seq == seq:
+                                return msg
+                    except TimeoutError:
+                        continue
+                raise TimeoutError(f"no vertices for frame {seq} after 3 tries")
 
             first = await send(card)  # no intrinsics yet: only the weak test
             assert "best pose" not in first.reason
