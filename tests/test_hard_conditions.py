@@ -113,6 +113,30 @@ def test_a_cast_shadow_darkens_one_side_and_an_occluder_reports_what_it_hides():
                        30.0 * lit.vertices_px[:, 1] / 479, atol=1e-9)
 
 
+def test_the_other_rhombus_is_never_the_markers_shape():
+    """The distractors' rhombus is another shape than the deployment's marker: 1.0-1.6 times
+    as wide as tall beside the default (0.76) or a tall marker, wider still beside a square or
+    a wide one (a square marker took it for itself on 15 of 600 views)."""
+    from services.sim.hazards import OTHER_RHOMBUS, _distractor_shape
+
+    def ratios(marker_ratio: float) -> np.ndarray:
+        rng = np.random.default_rng(0)
+        out = []
+        for _ in range(200):
+            quad = _distractor_shape("rhombus", rng, marker_ratio)[0]  # L T R B, turned
+            out.append(np.hypot(*(quad[2] - quad[0])) / np.hypot(*(quad[3] - quad[1])))
+        return np.array(out)
+    default = Geometry()
+    for marker_ratio in (default.marker_width_m / default.marker_height_m, 0.6):
+        r = ratios(marker_ratio)
+        assert r.min() >= 1.0 - 1e-9 and r.max() <= 1.6 + 1e-9
+        assert r.min() >= 1.3 * marker_ratio - 1e-9
+    for marker_ratio in (1.0, 1.3):
+        r = ratios(marker_ratio)
+        assert r.min() >= OTHER_RHOMBUS[0] * marker_ratio - 1e-9
+        assert r.max() <= OTHER_RHOMBUS[1] * marker_ratio + 1e-9
+
+
 def test_distractors_are_drawn_in_magenta_away_from_the_marker():
     from services.vertex_extractor.colour import ColourModel
     r = _view(_style(distractors=("card", "shirt", "cup", "rhombus"), distractor_seed=3))

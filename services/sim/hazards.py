@@ -175,17 +175,27 @@ def _rotated(points: np.ndarray, angle_rad: float) -> np.ndarray:
     return points @ np.array([[c, s], [-s, c]])
 
 
-def _distractor_shape(kind: str, rng: np.random.Generator) -> list[np.ndarray]:
-    """Polygons (px, about the origin) of one distractor."""
+#: the other rhombus (``distractors``) is another shape than the marker: 1.0-1.6 times as
+#: wide as tall beside a marker at most 1 / 1.3 as wide as tall (the default is 0.76), else
+#: this many times the marker's own width over height
+OTHER_RHOMBUS = (1.3, 2.1)
+
+
+def _distractor_shape(kind: str, rng: np.random.Generator, marker_ratio: float
+                      ) -> list[np.ndarray]:
+    """Polygons (px, about the origin) of one distractor; ``marker_ratio``: the marker's
+    horizontal diagonal over its vertical one."""
     if kind == "card":  # a credit card or a postcard, any in-plane angle, some perspective
         w = rng.uniform(30, 160)
         h = w / rng.choice([1.586, 1.414, 1.5])
         quad = np.array([[-w, -h], [w, -h], [w, h], [-w, h]]) / 2
         quad = quad * (1 + rng.uniform(-0.12, 0.12, (4, 1)))  # perspective, roughly
         return [_rotated(quad, rng.uniform(0, np.pi))]
-    if kind == "rhombus":  # another shape: at least as wide as tall (ours is taller)
+    if kind == "rhombus":  # another shape: wider than the marker (``OTHER_RHOMBUS``)
         v = rng.uniform(30, 140)
-        ratio = rng.uniform(1.0, 1.6)
+        low, high = OTHER_RHOMBUS
+        ratio = rng.uniform(1.0, 1.6) if marker_ratio * low <= 1.0 else \
+            rng.uniform(marker_ratio * low, marker_ratio * high)
         quad = np.array([[-ratio * v, 0], [0, -v], [ratio * v, 0], [0, v]]) / 2
         return [_rotated(quad, np.radians(rng.uniform(-15, 15)))]
     if kind == "cup":  # a body with an elliptic rim and base
@@ -202,15 +212,17 @@ def _distractor_shape(kind: str, rng: np.random.Generator) -> list[np.ndarray]:
     return [_rotated(shirt, np.radians(rng.uniform(-25, 25)))]
 
 
-def draw_distractors(img: np.ndarray, h: Hazards, avoid_px: np.ndarray | None) -> None:
+def draw_distractors(img: np.ndarray, h: Hazards, avoid_px: np.ndarray | None,
+                     marker_ratio: float) -> None:
     """Magenta things in the room (linear scene, in place), kept clear of ``avoid_px`` (the
-    marker's vertices) by a margin."""
+    marker's vertices) by a margin; none of them the marker's shape (``marker_ratio``: its
+    horizontal diagonal over its vertical one)."""
     H, W = img.shape[:2]
     rng = np.random.default_rng(h.distractor_seed)
     if avoid_px is not None:
         lo, hi = avoid_px.min(0) - 12, avoid_px.max(0) + 12
     for kind in h.distractors:
-        polys = _distractor_shape(kind, rng)
+        polys = _distractor_shape(kind, rng, marker_ratio)
         ext = np.vstack(polys)
         span = ext.max(0) - ext.min(0)
         for _ in range(40):  # somewhere in the frame, not over the marker

@@ -283,7 +283,8 @@ def _render_webcam(camera: CameraModel, T_camera_marker: np.ndarray,
         in_front = (T_camera_marker[:3, :3] @ marker_points_m.T).T + T_camera_marker[:3, 3]
         avoid = camera.project(in_front) if draw_marker and np.all(in_front[:, 2] > 0.01) \
             else None
-        hz.draw_distractors(img, h, avoid)
+        span = np.ptp(marker_points_m[:, :2], axis=0)  # the diagonals (x, y), m
+        hz.draw_distractors(img, h, avoid, float(span[0] / max(span[1], 1e-9)))
     vertices_px, facing, area = _draw_marker(img, camera, T_camera_marker, marker_points_m, ink,
                                              draw_marker)
     hidden = 0.0
