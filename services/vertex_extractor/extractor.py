@@ -303,8 +303,9 @@ class RhombusExtractor:
         self.max_diagonal_shift = min(DIAGONAL_SHIFT_SLACK * 0.5 * max(
             g.marker_width_m, g.marker_height_m) / (2.0 * self.params.nearest_view_m), 0.5)
         #: corners sharper than this (deg) are implausible
-        self.min_angle_deg = self.params.min_angle_deg or CORNER_SLACK * sharpest_corner_deg(
-            diagonal_ratio, self.params.max_off_normal_deg)
+        self.min_angle_deg: float = CORNER_SLACK * sharpest_corner_deg(
+            diagonal_ratio, self.params.max_off_normal_deg) \
+            if self.params.min_angle_deg is None else self.params.min_angle_deg
         p = self.params  # a small marker's second chance: shorter chords, fewer points
         self._small = p.model_copy(update=dict(
             min_len_px=min(p.min_len_px, p.small_min_len_px),
@@ -568,10 +569,6 @@ COV_FLOOR_PX2 = 0.0004
 #: longer half-diagonal); the depth at the image's corners is less than the distance: this
 #: covers up to 42 degrees off the optical axis (1 / cos 42)
 DIAGONAL_SHIFT_SLACK = 1.35
-#: the covariance of the mean of the column and the row scan's vertices: the scans' mean
-#: covariance scaled (their errors are partly independent) plus the square of their
-#: disagreement scaled; the shape test weighs the vertices by it, and ``covariance.reported``
-#: makes it the one reported (``tests/test_hard_conditions.py``)
 #: the sharpest corner the marker can show (``sharpest_corner_deg``) is allowed this much
 #: sharper still: perspective at the nearest view and the fit's noise on a thin marker
 CORNER_SLACK = 0.8
@@ -585,6 +582,10 @@ def sharpest_corner_deg(diagonal_ratio: float, off_normal_deg: float) -> float:
     return math.degrees(2.0 * math.atan(short * math.cos(math.radians(off_normal_deg))))
 
 
+#: the covariance of the mean of the column and the row scan's vertices: the scans' mean
+#: covariance scaled (their errors are partly independent) plus the square of their
+#: disagreement scaled; the shape test weighs the vertices by it, and ``covariance.reported``
+#: makes it the one reported (``tests/test_hard_conditions.py``)
 MEAN_COV_SCALE = 0.4
 #: check the column scan against a row scan of the same marker (about twice the time; blur
 #: and shadows bias one of them) and refuse a vertex disagreement beyond this (px)
