@@ -66,24 +66,34 @@ def _median_dev(x: np.ndarray, out: np.ndarray) -> float:
 
 
 @njit()
-def reported(v: np.ndarray, scan_cov_px2: np.ndarray, edge_offsets_px: np.ndarray,
-             vertex_steps_px: np.ndarray) -> np.ndarray:
-    """The covariance (4, 2, 2) px² reported with vertices v (4, 2) px (L, T, R, B), from the
-    kernel's ``scan_cov_px2`` (4, 2, 2), ``profile.step_offsets`` (4: edge k from vertex k to
-    k + 1) and ``profile.vertex_steps`` (8: edge k next to vertex k, then edge k next to
-    vertex k + 1; NaN where unknown)."""
+def profile_px2(edge_offsets_px: np.ndarray, vertex_steps_px: np.ndarray) -> np.ndarray:
+    """Each vertex's (4) variance px², each way, from the profile across its edges (the
+    floor included): ``profile.step_offsets`` (4: edge k from vertex k to k + 1) and
+    ``profile.vertex_steps`` (8: edge k next to vertex k, then edge k next to vertex k + 1;
+    NaN where unknown)."""
     edge_dev = np.empty(4)
     step_dev = np.empty(8)
     median = _median_dev(edge_offsets_px, edge_dev)
     _median_dev(vertex_steps_px, step_dev)
     common = FLOOR_PX2 + _excess(abs(median), COMMON_DEAD_PX)
-    out = SCALE * (size_px(v) / SIZE_PX) ** SIZE_POWER * scan_cov_px2
+    out = np.empty(4)
     for k in range(4):
         j = (k + 3) % 4  # the edge that ends at vertex k
-        iso = common + _excess(max(edge_dev[k], edge_dev[j]), DEAD_PX) + _excess(
+        out[k] = common + _excess(max(edge_dev[k], edge_dev[j]), DEAD_PX) + _excess(
             max(step_dev[k], step_dev[4 + j]), DEAD_PX)
-        out[k, 0, 0] += iso
-        out[k, 1, 1] += iso
+    return out
+
+
+@njit()
+def reported(v: np.ndarray, scan_cov_px2: np.ndarray, edge_offsets_px: np.ndarray,
+             vertex_steps_px: np.ndarray) -> np.ndarray:
+    """The covariance (4, 2, 2) px² reported with vertices v (4, 2) px (L, T, R, B), from the
+    kernel's ``scan_cov_px2`` (4, 2, 2) and the profile (``profile_px2``)."""
+    iso = profile_px2(edge_offsets_px, vertex_steps_px)
+    out = SCALE * (size_px(v) / SIZE_PX) ** SIZE_POWER * scan_cov_px2
+    for k in range(4):
+        out[k, 0, 0] += iso[k]
+        out[k, 1, 1] += iso[k]
     return out
 
 

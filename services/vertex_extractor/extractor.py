@@ -87,6 +87,10 @@ Where we depart from the paper, keeping its spirit:
   blur along the columns or a shadow's boundary inside one scan's window moves that scan's
   edges; the vertices are the two scans' mean, their
   disagreement grows the covariance, and a large one is refused.
+- With the camera's intrinsics, a marker the line fits refuse for want of edge points (a
+  highlight or an arm over an edge, a small or shaded marker) is fitted as the deployment's
+  rhombus to the edge points it shows, where three of its edges fix the pose
+  (``recover.py``), and passes the same tests; never on a tracked try.
 - The covariance reported (``covariance.py``) is that one scaled with the marker's size (the
   errors that matter do not average out along an edge) plus what the profile says about a
   misplaced edge: honest (NEES about 2) on small and large markers, under blur and shadows.
@@ -112,7 +116,16 @@ from pydantic import BaseModel, ConfigDict, Field
 
 from services.core.camera import CameraModel
 from services.core.mounts import Geometry
-from services.vertex_extractor import covariance, lines, measure, paper, profile, scan, shape
+from services.vertex_extractor import (
+    covariance,
+    lines,
+    measure,
+    paper,
+    profile,
+    recover,
+    scan,
+    shape,
+)
 from services.vertex_extractor.colour import ColourModel, grid_mask
 from services.vertex_extractor.shape import ShapeParams, ShapeTest
 
@@ -248,6 +261,12 @@ class ExtractorParams(BaseModel):
     shape: ShapeParams = Field(default_factory=ShapeParams, description=(
         "the shape test with intrinsics (camera/intrinsics): the best planar pose of the "
         "rhombus must reproject the vertices and view it as the deployment can"))
+    shape_recovery: bool = Field(default=True, description=(
+        "with intrinsics: a marker the line fits refuse for want of edge points (a "
+        "highlight or an arm over an edge, a small or shaded marker; not one whose profile "
+        "or shape test failed) is fitted as the deployment's rhombus to the edge points it "
+        "shows, under the same uncertainty limit and the shape test's view bounds "
+        "(recover.py)"))
 
 
 #: the quadrilateral's edges, from vertex k (left, top, right, bottom) to the next
@@ -446,6 +465,7 @@ class RhombusExtractor:
             prm[measure.UNDER_HIGHLIGHT] = p.both_scans_under_highlight
             measured = measure.measure(image, *seed, lut, model, prm)
         det, biased = self._judge(image, measured, prm, test, tracked)
+        refused = int(measured[0])  # FOUND: refused by the profile or the shape test
         if biased and prm[measure.WINDOW] > p.narrow_window:
             narrow = self._narrow(prm)
             # a marker whose column scan alone was too uncertain needs the rows' agreement;
@@ -469,7 +489,41 @@ class RhombusExtractor:
                 again, _ = self._judge(image, measured, highlight, test, tracked)
                 if again.found:
                     return again
+        if test is not None and p.shape_recovery and not tracked and \
+                refused in measure.WANT_OF_POINTS:
+            recovered = self._recover(image, seed, base, test)
+            if recovered is not None:
+                return recovered
         return det
+
+    def _recover(self, image: np.ndarray, seed: tuple[int, int, int], prm: np.ndarray,
+                 test: ShapeTest) -> Detection | None:
+        """The marker at or near ``seed`` fitted as the deployment's rhombus to the edge
+        points it shows (``recover.py``), if that passes the tests any detection passes (the
+        line fits' shape tests, the shape test with intrinsics, the profile tests, the
+        uncertainty limit); None otherwise (the line fits' refusal stands)."""
+        p = self.params
+        H, W = image.shape[:2]
+        fit = recover.recover(image, seed, p.colour.lut, p.colour.vector, prm, test.camera,
+                              test.marker_points, lambda v: _view_refusal(v, prm, W, H))
+        if isinstance(fit, str) or test.refusal(fit.vertices_px, fit.cov_px2):
+            return None
+        v = fit.vertices_px
+        # the profile across its edges, as a line fit's: an edge off its step, a vertex off
+        # its edges' steps (a shadow's boundary) refuse; the rest adds to the uncertainty
+        offsets = profile.step_offsets(image, v, p.colour.lut)
+        steps = profile.vertex_steps(image, v, p.colour.lut, p.colour.vector)
+        if profile.odd_edge(offsets, p.max_step_offset_px, p.max_step_spread_px) >= 0 or \
+                profile.odd_vertex(steps, p.max_vertex_step_px)[0] >= 0:
+            return None
+        cov = fit.cov_px2 + covariance.profile_px2(offsets, steps)[:, None, None] * np.eye(2)
+        if recover.largest_sigma_px(cov) > p.max_vertex_sigma_px:
+            return None
+        xs, ys = v[:, 0], v[:, 1]
+        self._seed = (int(xs.mean()), int(ys.mean()),
+                      max(4, int(0.25 * min(np.ptp(xs), np.ptp(ys)))))
+        area = recover.quad_area(v)
+        return Detection(True, v, min(area / (W * H), 1.0), fit.rms_px, "", False, None, cov)
 
     def _narrow(self, prm: np.ndarray) -> np.ndarray:
         """The parameters ``prm`` of a second try with the narrow window (``narrow_window``),
@@ -659,6 +713,24 @@ def _reason(status: int, s: np.ndarray, prm: np.ndarray) -> str:
     return _refusals[status]
 
 
+def _view_refusal(v: np.ndarray, prm: np.ndarray, width: int, height: int) -> str:
+    """Why the quadrilateral v (4, 2) px is no view of the marker by the line fits' own shape
+    tests (``measure._accept``: corner angles, the weak-perspective view's bounds, where the
+    diagonals cross), "" when it may be one."""
+    verdict, _, amin, amax = lines.check_rhombus(v, 0.0, 0.0, width, height,
+                                                 prm[measure.MIN_ANGLE], np.inf)
+    if verdict not in (lines.PLAUSIBLE, lines.AREA_MISMATCH):  # (no blob to compare)
+        return _verdicts[verdict].format(residual=0.0, area=0.0, blob=0, amin=amin, amax=amax)
+    tilt, roll, pitch, _ = lines.weak_view(v, prm[measure.DIAGONAL_RATIO])
+    if tilt > prm[measure.MAX_OFF_NORMAL] or roll > prm[measure.MAX_ROLL] or \
+            pitch > prm[measure.MAX_PITCH]:
+        return (f"no view of the marker (as the marker it would be {tilt:.0f} deg off its "
+                f"normal, rolled {roll:.0f} deg, {pitch:.0f} deg about its horizontal axis)")
+    if lines.diagonal_shift(v) > prm[measure.MAX_DIAGONAL_SHIFT]:
+        return "its diagonals cross too far off their midpoints"
+    return ""
+
+
 _refusals = {
     measure.NO_SEED: "no marker-coloured pixels at the seed",
     measure.BORDER: "marker touches the image border",
@@ -697,3 +769,4 @@ def warm_up(params: ExtractorParams | None = None) -> None:
     shape.warm_up()
     profile.warm_up()
     covariance.warm_up()
+    recover.warm_up()
