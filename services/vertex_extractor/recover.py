@@ -56,6 +56,9 @@ MIN_EDGE_SPAN = 0.4
 #: model is not extrapolated further (on 1 500 views under a clipped highlight, a vertex 57 %
 #: of its edge from the nearest point came out 2.4 px off)
 MAX_VERTEX_GAP = 0.5
+#: an edge's points may lie this far (px) beyond its ends (the window's reach at a vertex):
+#: further, and the marker reaches further than the fitted rhombus
+MAX_BEYOND_PX = 1.5
 #: the best pose must fit the points better than any other candidate whose vertices lie more
 #: than RIVAL_PX from its by this much (the truncated sum of squared residuals, in units of
 #: the residuals' own variance): otherwise the points cannot tell the two apart
@@ -74,7 +77,8 @@ MAX_MARKER_OUTSIDE_SHARE = 0.0005
 SIGMA_FLOOR_PX = 0.3  # the residuals' scale is never taken smaller (Tukey's weights)
 TUKEY = 4.685
 ITERATIONS = 30
-REFINED = 4  # candidates refined, the best fitting first
+FIRST_STEPS = 6  # every start refined this far,
+REFINED = 4  # then the best fitting this many to the end
 #: the chains (column scan's upper and lower, row scan's left and right) and the two edges
 #: (left-top, top-right, right-bottom, bottom-left: edge e joins vertex e and e + 1) each
 #: runs along, in the order the chain meets them
@@ -458,11 +462,15 @@ def recover(img: np.ndarray, seed: tuple[int, int, int], lut: np.ndarray, m: np.
     q = np.ascontiguousarray(undistort_px(camera, points))
     f = float(camera.K[1, 1])
     model = np.ascontiguousarray(model, np.float64)
-    starts = sorted(((_cost(R, t, model, q, chain, f), i, R, t) for i, (R, t) in
-                     enumerate(_candidates(fitted, chains, box, camera, model))),
-                    key=lambda c: c[:2])[:REFINED]
+    # every start a few steps (its first cost says little: a wrong start can look better),
+    # the best REFINED of them to the end
+    starts = []
+    for i, (R, t) in enumerate(_candidates(fitted, chains, box, camera, model)):
+        R, t, r, _, _, s = refine(q, chain, model, R, t, f, FIRST_STEPS)
+        if np.all(np.isfinite(r)) and t[2] > 0.0:
+            starts.append((float(np.minimum(r * r, (3.0 * s) ** 2).sum()), i, R, t))
     fits = []
-    for _, _, R, t in starts:
+    for _, _, R, t in sorted(starts, key=lambda c: c[:2])[:REFINED]:
         R, t, r, who, w, s = refine(q, chain, model, R, t, f, ITERATIONS)
         if not (np.all(np.isfinite(r)) and t[2] > 0.0):
             continue
@@ -476,7 +484,7 @@ def recover(img: np.ndarray, seed: tuple[int, int, int], lut: np.ndarray, m: np.
     if rival - cost < MIN_RIVAL * s * s:
         return "two poses of the rhombus fit its edge points alike (ambiguous)"
     inlying = np.abs(r) < 3.0 * s
-    counts, spans, gaps = [], [], np.ones(4)
+    counts, spans, gaps, beyond = [], [], np.ones(4), 0.0
     for e in range(4):
         a, b = v[e], v[(e + 1) % 4]
         on = inlying & (who == e)
@@ -484,7 +492,10 @@ def recover(img: np.ndarray, seed: tuple[int, int, int], lut: np.ndarray, m: np.
         if counts[-1] < 2:
             spans.append(0.0)
             continue
-        along = np.clip((points[on] - a) @ (b - a) / ((b - a) @ (b - a)), 0.0, 1.0)
+        length = float(np.linalg.norm(b - a))
+        along = (points[on] - a) @ (b - a) / (length * length)
+        beyond = max(beyond, -along.min() * length, (along.max() - 1.0) * length)
+        along = np.clip(along, 0.0, 1.0)
         spans.append(float(along.max() - along.min()))
         gaps[e] = min(gaps[e], along.min())  # vertex e starts edge e
         gaps[(e + 1) % 4] = min(gaps[(e + 1) % 4], 1.0 - along.max())  # vertex e+1 ends it
@@ -492,6 +503,9 @@ def recover(img: np.ndarray, seed: tuple[int, int, int], lut: np.ndarray, m: np.
                    for n, span in zip(counts, spans, strict=True))
     if carrying < 3:
         return f"the rhombus fitted to its edge points rests on {carrying} edges, not 3"
+    if beyond > MAX_BEYOND_PX:
+        return (f"the rhombus fitted to its edge points has an edge's points {beyond:.1f} px "
+                "beyond its vertex (the marker is larger)")
     if gaps.max() > MAX_VERTEX_GAP:
         return (f"the rhombus fitted to its edge points puts a vertex {gaps.max():.0%} of an "
                 "edge from any point (hidden)")
@@ -521,8 +535,8 @@ def recover(img: np.ndarray, seed: tuple[int, int, int], lut: np.ndarray, m: np.
     Cv = Jv @ C @ Jv.T
     cov = np.array([Cv[2 * k:2 * k + 2, 2 * k:2 * k + 2] for k in range(4)])
     for k in range(4):  # a vertex further from the points is the model's extrapolation
-        length = 0.5 * (np.linalg.norm(v[k] - v[k - 1]) + np.linalg.norm(v[(k + 1) % 4] - v[k]))
-        cov[k] += (EXTRAPOLATION * gaps[k] * length) ** 2 * np.eye(2)
+        reach = 0.5 * float(np.linalg.norm(v[k] - v[k - 1]) + np.linalg.norm(v[(k + 1) % 4] - v[k]))
+        cov[k] += (EXTRAPOLATION * gaps[k] * reach) ** 2 * np.eye(2)
     if not np.all(np.isfinite(cov)):
         return "the rhombus's pose is not fixed by its edge points"
     rms = float(np.sqrt(np.mean(r[inlying] ** 2))) if inlying.any() else 0.0
