@@ -16,8 +16,9 @@ follow from the edges that are seen:
 3. each refined by Gauss-Newton on the points' distances (px) to the projected edges, each
    point on the nearer of its chain's two edges, Tukey weights (``refine``); the best kept;
 4. accepted only where three edges carry points (``MIN_EDGE_POINTS`` along at least
-   ``MIN_EDGE_SPAN`` of the edge), every vertex has points within ``MAX_VERTEX_GAP`` of an
-   edge's length of it (the model is not extrapolated further), no other candidate pose fits
+   ``MIN_EDGE_SPAN`` of the edge), none more than ``MAX_BEYOND_PX`` beyond its edge's ends,
+   every vertex has points within ``MAX_VERTEX_GAP`` of an edge's length of it (the model is
+   not extrapolated further), no other candidate pose fits
    nearly as well (``MIN_RIVAL``: two poses the points cannot tell apart), the line fits'
    own shape tests pass (``view_refusal``, asked first of the four lines' quadrilateral: a
    pink card fully seen is no marker with points missing), and no marker-coloured pixel lies
