@@ -491,6 +491,8 @@ class RhombusExtractor:
                     return again
         if test is not None and p.shape_recovery and not tracked and \
                 refused in measure.WANT_OF_POINTS:
+            # (the scans with the first try's parameters: a small marker's second try
+            # narrows the window for short chords, which the fit does not need)
             recovered = self._recover(image, seed, base, test)
             if recovered is not None:
                 return recovered

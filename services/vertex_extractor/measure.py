@@ -28,10 +28,16 @@ FIT, VERDICT, SHAPE, UNCERTAIN, DISAGREE, ROWS_OFF, PERSPECTIVE = 10, 20, 30, 31
 FEW = (SMALL_AREA, FEW_COLUMNS, FEW_POINTS, FIT + lines.TOO_FEW_POINTS)
 #: refusals for want of edge points (a highlight or an arm over an edge, a small or shaded
 #: marker), where the known rhombus may still be fitted to those it shows
-#: (``recover.py``, with intrinsics): too few, the lines failing, too uncertain, the scans
-#: disagreeing; not a seed, the border, the contrast or the shape tests
-WANT_OF_POINTS = (*FEW, UNCERTAIN, DISAGREE, ROWS_OFF, *(FIT + s for s in range(1, 10)),
-                  *(VERDICT + s for s in range(1, 10)))
+#: (``recover.py``, with intrinsics): too few, the lines failing to fit or to make a
+#: plausible quadrilateral (``lines.check_rhombus``'s verdicts: the points they rest on are
+#: partly another thing's), too uncertain, the scans disagreeing; not a seed, the border,
+#: the contrast, the weak-perspective view (SHAPE), the diagonals' crossing (PERSPECTIVE)
+WANT_OF_POINTS = (*FEW, UNCERTAIN, DISAGREE, ROWS_OFF,
+                  *(FIT + s for s in (lines.TOO_FEW_POINTS, lines.PARALLEL, lines.HIDDEN_EDGE,
+                                      lines.OUTSIDE_POINTS)),
+                  *(VERDICT + s for s in (lines.NOT_FINITE, lines.OUTSIDE, lines.NOT_CONVEX,
+                                          lines.BAD_ANGLES, lines.NOT_STRAIGHT,
+                                          lines.AREA_MISMATCH)))
 #: refusals that a shadow's boundary inside the sub-pixel window can cause (tried again with
 #: a narrower one, ``ExtractorParams.narrow_window``; so is an edge off its step). Not
 #: UNCERTAIN: a narrower window reports such a marker surer than it is (4 of 900 highlight

@@ -90,12 +90,12 @@ CHAIN_EDGES = np.array([[0, 1], [3, 2], [0, 3], [1, 2]])
 class Recovery:
     """The rhombus fitted to the edge points: vertices (4, 2) px (left, top, right, bottom),
     their covariance (4, 2, 2) px², the inlying points' rms distance to the edges (px), and
-    per edge its inlying points and the share of its length they span."""
+    per edge the number of its inlying points and the share of its length they span."""
 
     vertices_px: np.ndarray
     cov_px2: np.ndarray
     rms_px: float
-    edge_points: tuple[int, int, int, int]
+    edge_counts: tuple[int, int, int, int]
     edge_spans: tuple[float, float, float, float]
 
 
@@ -233,6 +233,7 @@ def _project(R: np.ndarray, t: np.ndarray, model: np.ndarray) -> np.ndarray:
         X = R[0, 0] * model[k, 0] + R[0, 1] * model[k, 1] + R[0, 2] * model[k, 2] + t[0]
         Y = R[1, 0] * model[k, 0] + R[1, 1] * model[k, 1] + R[1, 2] * model[k, 2] + t[1]
         Z = R[2, 0] * model[k, 0] + R[2, 1] * model[k, 1] + R[2, 2] * model[k, 2] + t[2]
+        Z = max(Z, 1e-9)  # (a vertex at or behind the camera: far off, refused later)
         P[k, 0], P[k, 1] = X / Z, Y / Z
     return P
 
@@ -299,7 +300,7 @@ def refine(q: np.ndarray, chain: np.ndarray, model: np.ndarray, R: np.ndarray,
     r = np.empty(n)
     w = np.empty(n)
     s = SIGMA_FLOOR_PX
-    for _ in range(iterations + 1):
+    for step_no in range(iterations + 1):
         P = _project(R, t, model)
         _assign(P, q, chain, who)
         _residuals(P, q, who, f, r)
@@ -307,7 +308,7 @@ def refine(q: np.ndarray, chain: np.ndarray, model: np.ndarray, R: np.ndarray,
         c = TUKEY * s
         for i in range(n):
             w[i] = (1.0 - (r[i] / c) ** 2) ** 2 if abs(r[i]) < c else 0.0
-        if _ == iterations:
+        if step_no == iterations:
             break
         J = _jacobian(R, t, model, q, who, f, r)
         A = J.T @ (J * w.reshape(-1, 1))
@@ -423,17 +424,6 @@ def _quad(fitted: list[tuple[np.ndarray, np.ndarray]]) -> np.ndarray:
     return np.array([c if c is not None else (np.nan, np.nan) for c in corners])
 
 
-def _cost(R: np.ndarray, t: np.ndarray, model: np.ndarray, q: np.ndarray, chain: np.ndarray,
-          f: float) -> float:
-    """A pose's truncated sum of squared distances (px²) of the points to their edges."""
-    P = _project(R, t, model)
-    who = np.zeros(q.shape[0], np.int64)
-    r = np.empty(q.shape[0])
-    _assign(P, q, chain, who)
-    _residuals(P, q, who, f, r)
-    return float(np.minimum(r * r, (3.0 * SIGMA_FLOOR_PX) ** 2).sum())
-
-
 def recover(img: np.ndarray, seed: tuple[int, int, int], lut: np.ndarray, m: np.ndarray,
             prm: np.ndarray, camera: CameraModel, model: np.ndarray,
             view_refusal: Callable[[np.ndarray], str]) -> Recovery | str:
@@ -468,12 +458,12 @@ def recover(img: np.ndarray, seed: tuple[int, int, int], lut: np.ndarray, m: np.
     starts = []
     for i, (R, t) in enumerate(_candidates(fitted, chains, box, camera, model)):
         R, t, r, _, _, s = refine(q, chain, model, R, t, f, FIRST_STEPS)
-        if np.all(np.isfinite(r)) and t[2] > 0.0:
+        if np.all(np.isfinite(r)) and (model @ R.T + t)[:, 2].min() > 0.0:
             starts.append((float(np.minimum(r * r, (3.0 * s) ** 2).sum()), i, R, t))
     fits = []
     for _, _, R, t in sorted(starts, key=lambda c: c[:2])[:REFINED]:
         R, t, r, who, w, s = refine(q, chain, model, R, t, f, ITERATIONS)
-        if not (np.all(np.isfinite(r)) and t[2] > 0.0):
+        if not (np.all(np.isfinite(r)) and (model @ R.T + t)[:, 2].min() > 0.0):
             continue
         cost = float(np.minimum(r * r, (3.0 * s) ** 2).sum())
         fits.append((cost, R, t, r, who, w, s, project_px(camera.K, camera.dist,
@@ -562,6 +552,5 @@ def warm_up() -> None:
     q = np.ascontiguousarray(0.5 * (P + np.roll(P, -1, axis=0)))  # each edge's middle
     chain = np.array([0, 0, 1, 1])
     refine(q, chain, model, np.eye(3), np.array([0.0, 0.0, 0.4]), 750.0, 2)
-    _cost(np.eye(3), np.array([0.0, 0.0, 0.4]), model, q, chain, 750.0)
     image = np.zeros((8, 8, 3), np.uint8)  # (all inside the mask: no pixel is tested)
     _outside_marker(image, np.ones((8, 8), np.bool_), 0, 0, np.zeros(256), np.zeros(8), 0.0)
