@@ -25,7 +25,8 @@ follow from the edges that are seen:
    outside the quadrilateral (``MAX_MARKER_OUTSIDE``: it is not part of the marker).
 
 The covariance reported is the fit's, each edge's points counted as at most ``EDGE_DOF``
-independent ones (its errors do not average out along it), plus ``EXTRAPOLATION`` of the
+independent ones (its errors do not average out along it; ``WEAK_EDGE_DOF`` on an edge that
+does not carry the pose), plus ``EXTRAPOLATION`` of the
 stretch between each vertex and its nearest point. The extractor then applies the shape
 test's view bounds, the profile tests and the uncertainty limit as to any detection.
 
@@ -65,8 +66,11 @@ MAX_BEYOND_PX = 1.5
 #: the residuals' own variance): otherwise the points cannot tell the two apart
 MIN_RIVAL = 3.0
 RIVAL_PX = 2.0
-#: an edge's points count as at most this many independent ones in the covariance
+#: an edge's points count as at most this many independent ones in the covariance; those of
+#: an edge that does not carry the pose (too few, or too short a stretch) as one (the few
+#: points of an edge next to a hidden one otherwise seemed to pin it)
 EDGE_DOF = 4.0
+WEAK_EDGE_DOF = 1.0
 #: a vertex's sigma grows by this share of the stretch (px) between it and the nearest edge
 #: point: the model's shape and the intrinsics carried that far
 EXTRAPOLATION = 0.03
@@ -510,7 +514,10 @@ def recover(img: np.ndarray, seed: tuple[int, int, int], lut: np.ndarray, m: np.
     # the covariance: each edge's points count as at most EDGE_DOF
     J = _jacobian(R, t, model, q, who, f, r)
     per_edge = np.bincount(who[inlying], minlength=4).astype(float)
-    wc = w * np.minimum(1.0, EDGE_DOF / np.maximum(per_edge[who], 1.0))
+    carries = np.array([n >= MIN_EDGE_POINTS and span >= MIN_EDGE_SPAN
+                        for n, span in zip(counts, spans, strict=True)])
+    dof = np.where(carries, EDGE_DOF, WEAK_EDGE_DOF)
+    wc = w * np.minimum(1.0, dof[who] / np.maximum(per_edge[who], 1.0))
     try:
         C = np.linalg.inv(J.T @ (J * wc[:, None])) * s * s
     except np.linalg.LinAlgError:
