@@ -717,20 +717,12 @@ def _reason(status: int, s: np.ndarray, prm: np.ndarray) -> str:
 
 def _view_refusal(v: np.ndarray, prm: np.ndarray, width: int, height: int) -> str:
     """Why the quadrilateral v (4, 2) px is no view of the marker by the line fits' own shape
-    tests (``measure._accept``: corner angles, the weak-perspective view's bounds, where the
-    diagonals cross), "" when it may be one."""
-    verdict, _, amin, amax = lines.check_rhombus(v, 0.0, 0.0, width, height,
-                                                 prm[measure.MIN_ANGLE], np.inf)
-    if verdict not in (lines.PLAUSIBLE, lines.AREA_MISMATCH):  # (no blob to compare)
-        return _verdicts[verdict].format(residual=0.0, area=0.0, blob=0, amin=amin, amax=amax)
-    tilt, roll, pitch, _ = lines.weak_view(v, prm[measure.DIAGONAL_RATIO])
-    if tilt > prm[measure.MAX_OFF_NORMAL] or roll > prm[measure.MAX_ROLL] or \
-            pitch > prm[measure.MAX_PITCH]:
-        return (f"no view of the marker (as the marker it would be {tilt:.0f} deg off its "
-                f"normal, rolled {roll:.0f} deg, {pitch:.0f} deg about its horizontal axis)")
-    if lines.diagonal_shift(v) > prm[measure.MAX_DIAGONAL_SHIFT]:
-        return "its diagonals cross too far off their midpoints"
-    return ""
+    tests (``measure._accept``: corner angles, the weak-perspective view, where the diagonals
+    cross; the blob taken as the quadrilateral, no residual), "" when it may be one."""
+    stats = np.zeros(measure.N_STATS)
+    status = measure._accept(v, 0.0, np.zeros((4, 2, 2)), 0.0, recover.quad_area(v), width,
+                             height, prm, stats, np.zeros((4, 2)), np.zeros((4, 2, 2)))
+    return "" if status == measure.FOUND else _reason(status, stats, prm)
 
 
 _refusals = {

@@ -147,14 +147,15 @@ def _split(chain: np.ndarray, k: int) -> int:
     return int(lines.best_split(np.ascontiguousarray(along), 2))
 
 
-def _edge_lines(chains: list[np.ndarray]) -> list[tuple[np.ndarray, np.ndarray] | None]:
+def _edge_lines(chains: list[np.ndarray], splits: list[int]
+                ) -> list[tuple[np.ndarray, np.ndarray] | None]:
     """Each edge's line (a point on it, its unit direction; image px) through the points of
-    the chains along it, where it has at least MIN_EDGE_POINTS over 3 px or more."""
+    the chains along it (each split at ``splits``, ``_split``), where it has at least
+    MIN_EDGE_POINTS over 3 px or more."""
     groups: list[list[np.ndarray]] = [[], [], [], []]
-    for k, chain in enumerate(chains):
+    for k, (chain, j) in enumerate(zip(chains, splits, strict=True)):
         if chain.shape[0] == 0:
             continue
-        j = _split(chain, k)
         groups[CHAIN_EDGES[k, 0]].append(chain[:j])
         groups[CHAIN_EDGES[k, 1]].append(chain[j:])
     out: list[tuple[np.ndarray, np.ndarray] | None] = []
@@ -386,15 +387,14 @@ def _normals(fitted: list[tuple[np.ndarray, np.ndarray] | None], camera: CameraM
     return normals
 
 
-def _box_quad(chains: list[np.ndarray], box: np.ndarray) -> np.ndarray:
+def _box_quad(chains: list[np.ndarray], splits: list[int], box: np.ndarray) -> np.ndarray:
     """The blob's box (x0, x1, y0, y1) turned into a quadrilateral at the sides' points where
     the chains turn (the middle of a side where a chain has too few points)."""
     middle = (0.5 * (box[0] + box[1]), 0.5 * (box[0] + box[1]),
               0.5 * (box[2] + box[3]), 0.5 * (box[2] + box[3]))
     turns = list(middle)  # top, bottom (x), left, right (y)
-    for k, chain in enumerate(chains):
+    for k, (chain, j) in enumerate(zip(chains, splits, strict=True)):
         if chain.shape[0] >= 4:
-            j = _split(chain, k)
             axis = 0 if k < 2 else 1
             turns[k] = 0.5 * (chain[j - 1, axis] + chain[j, axis])
     top, bottom, left, right = turns
@@ -402,11 +402,11 @@ def _box_quad(chains: list[np.ndarray], box: np.ndarray) -> np.ndarray:
 
 
 def _candidates(fitted: list[tuple[np.ndarray, np.ndarray] | None], chains: list[np.ndarray],
-                box: np.ndarray, camera: CameraModel, model: np.ndarray
+                splits: list[int], box: np.ndarray, camera: CameraModel, model: np.ndarray
                 ) -> list[tuple[np.ndarray, np.ndarray]]:
     """Initial poses: IPPE on the four edges' lines' quadrilateral, ``p3l`` on each three
     consecutive edges' lines, IPPE on the blob's box turned where the chains turn."""
-    quads = [_box_quad(chains, box)]
+    quads = [_box_quad(chains, splits, box)]
     if all(line is not None for line in fitted):
         quads.append(_quad(fitted))  # type: ignore[arg-type]
     poses = []
@@ -444,7 +444,8 @@ def recover(img: np.ndarray, seed: tuple[int, int, int], lut: np.ndarray, m: np.
     points = np.concatenate(chains)
     if points.shape[0] < 3 * MIN_EDGE_POINTS:
         return f"too few edge points to fit the rhombus to ({points.shape[0]})"
-    fitted = _edge_lines(chains)
+    splits = [_split(chain, k) for k, chain in enumerate(chains)]
+    fitted = _edge_lines(chains, splits)
     lined = sum(line is not None for line in fitted)
     if lined < 3:
         return f"{lined} edges show a line, not 3"
@@ -460,7 +461,7 @@ def recover(img: np.ndarray, seed: tuple[int, int, int], lut: np.ndarray, m: np.
     # every start a few steps (its first cost says little: a wrong start can look better),
     # the best REFINED of them to the end
     starts = []
-    for i, (R, t) in enumerate(_candidates(fitted, chains, box, camera, model)):
+    for i, (R, t) in enumerate(_candidates(fitted, chains, splits, box, camera, model)):
         R, t, r, _, _, s = refine(q, chain, model, R, t, f, FIRST_STEPS)
         if np.all(np.isfinite(r)) and (model @ R.T + t)[:, 2].min() > 0.0:
             starts.append((float(np.minimum(r * r, (3.0 * s) ** 2).sum()), i, R, t))
