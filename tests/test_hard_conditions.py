@@ -251,6 +251,27 @@ def test_a_card_in_the_markers_own_ink_is_refused_for_its_shape():
     assert not det.found and "not the marker's shape" in det.reason
 
 
+def test_a_bigger_thing_of_the_markers_shape_beside_it_makes_the_frame_ambiguous():
+    """A rhombus of the marker's shape in its ink, 2.5 times its size, beside the marker: which
+    is the marker no shape test can tell (a square marker and a square card, a card turned to
+    look like a wide marker), so the frame is refused as ambiguous; the bigger one was taken
+    before, its smaller rival never tried. Alone, the marker is found."""
+    cam, g = CameraModel.paper(), Geometry()
+    T = marker_pose(0.6, 180, 240, cam, np.radians(10.0))
+    r = render_view(cam, T, marker_points_m=g.marker_points(), style=_style())
+    assert r.vertices_px is not None
+    ex = RhombusExtractor()
+    assert ex.extract(r.image).found
+    ink = r.image[int(r.vertices_px[:, 1].mean()), int(r.vertices_px[:, 0].mean())]
+    bigger = (r.vertices_px - r.vertices_px.mean(0)) * 2.5 + (450.0, 240.0)
+    frame = r.image.copy()
+    cv2.fillConvexPoly(frame, np.round(bigger * 16).astype(np.int32),
+                       tuple(int(c) for c in ink), cv2.LINE_AA, 4)
+    ex.reset()
+    det = ex.extract(frame)
+    assert not det.found and "ambiguous" in det.reason, det.vertices_px
+
+
 def test_the_diagonals_cross_off_their_midpoints_by_the_depth_difference():
     """lines.diagonal_shift: the rhombus at depth Z turned by a about its vertical axis (its
     horizontal half-diagonal w: its ends at Z -/+ w sin a) crosses w sin a / 2Z off the

@@ -41,3 +41,17 @@ def test_the_pdf_draws_the_rhombus_in_magenta_at_exact_size(tmp_path: Path):
     assert f"{left_x:.3f}".encode() in pdf  # the left vertex, 25 mm left of the centre
     bad = cli_here("marker", "sheet", "--out", str(tmp_path / "m.txt"))
     assert bad.returncode == 2 and "expected .pdf, .svg or .png" in bad.stderr
+
+
+def test_a_marker_as_wide_as_tall_is_printed_with_a_warning(tmp_path: Path):
+    """A square or wide rhombus is a shape pink cards take in some view: the sheet is still
+    written, with a warning that says which shape to use; the default's is not warned of."""
+    deployment = tmp_path / "square.toml"
+    deployment.write_text("[geometry]\nmarker_width_m = 0.066\nmarker_height_m = 0.066\n")
+    out = cli_here("marker", "sheet", "--file", str(deployment), "--out",
+                   str(tmp_path / "m.pdf"))
+    assert out.returncode == 0 and (tmp_path / "m.pdf").exists(), out.stderr
+    assert "warning: the marker's diagonals (horizontal 1.00 x the vertical)" in out.stderr
+    assert "taller than wide" in out.stderr
+    plain = cli_here("marker", "sheet", "--out", str(tmp_path / "d.pdf"))
+    assert plain.returncode == 0 and "warning" not in plain.stderr

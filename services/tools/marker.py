@@ -76,12 +76,15 @@ def cmd_learn(args: argparse.Namespace) -> int:
 def cmd_sheet(args: argparse.Namespace) -> int:
     from services.data import DEFAULT_DEPLOYMENT
     from services.runtime.config import ConfigError, load_deployment
+    from services.vertex_extractor.extractor import shape_warning
     from services.vertex_extractor.sheet import MarkerSheet
     try:
         g = load_deployment(args.file or DEFAULT_DEPLOYMENT).geometry
     except ConfigError as err:
         print(f"shepherd: {err}", file=sys.stderr)
         return 2
+    if warning := shape_warning(g.marker_width_m / g.marker_height_m):
+        print(f"shepherd: warning: {warning}", file=sys.stderr)
     sheet = MarkerSheet(width_mm=1000 * g.marker_width_m, height_mm=1000 * g.marker_height_m)
     return save_sheet(sheet, Path(args.out), args.dpi)
 

@@ -386,27 +386,28 @@ class RhombusExtractor:
 
     def _first_marker(self, image: np.ndarray, seeds: list[tuple[int, int, int, int]]
                       ) -> Detection:
-        """The one blob, largest first, that passes as the marker. A second blob of similar
-        size (>= 40 % of the found one's cells) that passes too, with edges about as straight
-        (residual within 3x + 0.1 px), makes the frame ambiguous; otherwise the straighter
-        one is the marker."""
+        """The one blob, largest first, that passes as the marker. Another blob that passes
+        too, whatever its size, with edges about as straight (residual within 3x + 0.1 px),
+        makes the frame ambiguous; otherwise the straighter one is the marker. (Only blobs of
+        at least 40 % of the found one's cells were tried until stop 42: a pink card of the
+        marker's shape and twice its size was then taken for a square or wide marker beside
+        it, 12 of 600 views with a square one.)"""
         first: Detection | None = None
-        for i, (x, y, radius, cells) in enumerate(seeds):
+        for i, (x, y, radius, _) in enumerate(seeds):
             det = self._extract_from(image, (x, y, radius), tracked=False)
             if not det.found:
                 first = first or det
                 continue
             seed = self._seed
-            for x2, y2, r2, cells2 in seeds[i + 1:]:
-                if cells2 < 0.4 * cells:
-                    break
+            for x2, y2, r2, _ in seeds[i + 1:]:
                 other = self._extract_from(image, (x2, y2, r2), tracked=False)
                 if not other.found or _same_marker(det, other):
                     continue  # (a highlight or an arm splits one marker's blob in two)
                 lo, hi = sorted((det.residual_px, other.residual_px))
                 if hi < 3 * lo + 0.1:
                     self._seed = None
-                    return _miss("two or more marker-like rhombi of similar size (ambiguous)")
+                    return _miss("two or more marker-like rhombi in view (ambiguous: no shape "
+                                 "test tells which is the marker)")
                 if other.residual_px < det.residual_px:
                     det, seed = other, self._seed
             self._seed = seed
@@ -636,6 +637,25 @@ def sharpest_corner_deg(diagonal_ratio: float, off_normal_deg: float) -> float:
     about its longer diagonal, the shorter one shrinks by the cosine."""
     short = min(diagonal_ratio, 1.0 / diagonal_ratio)
     return math.degrees(2.0 * math.atan(short * math.cos(math.radians(off_normal_deg))))
+
+
+#: a marker whose horizontal diagonal is more than this share of its vertical one is a shape
+#: that pink cards and sticky notes take in some view the shape tests allow (marker-less
+#: frames with pink things, docs/measured.md "The marker's shape": none of 1 200 taken for the
+#: default 0.76 marker, 1 of 200 at 0.86, 5 at 0.93, a sixth at 1.0 and a third at 1.17)
+MAX_DISTINCT_RATIO = 0.85
+
+
+def shape_warning(diagonal_ratio: float) -> str:
+    """Why a marker whose horizontal diagonal is ``diagonal_ratio`` times its vertical one
+    will be confused with everyday magenta things, or "" when it is distinct enough."""
+    if diagonal_ratio <= MAX_DISTINCT_RATIO:
+        return ""
+    return (f"the marker's diagonals (horizontal {diagonal_ratio:.2f} x the vertical) make a "
+            f"shape that pink cards and sticky notes take in some views: they will be taken "
+            f"for the marker when it is out of view (and make frames with it ambiguous). Use "
+            f"a marker taller than wide, its horizontal diagonal at most "
+            f"{MAX_DISTINCT_RATIO:.2f} x the vertical (the default: 5.0 x 6.6 cm)")
 
 
 #: the covariance of the mean of the column and the row scan's vertices: the scans' mean

@@ -24,6 +24,7 @@ from services.vertex_extractor.extractor import (
     Detection,
     ExtractorParams,
     RhombusExtractor,
+    shape_warning,
     warm_up,
 )
 from services.vertex_extractor.learn import load_colour_file
@@ -112,6 +113,8 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
     await asyncio.to_thread(warm_up, params)  # compiled kernels ready before the first frame
     g = ctx.geometry
     extractor = RhombusExtractor(params, geometry=g)
+    if warning := shape_warning(extractor.diagonal_ratio):
+        log.warning("%s", warning)
     follower = IntrinsicsFollower(extractor, g, log)
     asking = None
     if config.intrinsics is not None:
