@@ -388,10 +388,9 @@ class RhombusExtractor:
                       ) -> Detection:
         """The one blob, largest first, that passes as the marker. Another blob that passes
         too, whatever its size, with edges about as straight (residual within 3x + 0.1 px),
-        makes the frame ambiguous; otherwise the straighter one is the marker. (Only blobs of
-        at least 40 % of the found one's cells were tried until stop 42: a pink card of the
-        marker's shape and twice its size was then taken for a square or wide marker beside
-        it, 12 of 600 views with a square one.)"""
+        makes the frame ambiguous; otherwise the straighter one is the marker (a pink card that
+        passes as the marker looks bigger or smaller with its distance: docs/measured.md "The
+        marker's shape")."""
         first: Detection | None = None
         for i, (x, y, radius, _) in enumerate(seeds):
             det = self._extract_from(image, (x, y, radius), tracked=False)
@@ -522,9 +521,7 @@ class RhombusExtractor:
         cov = fit.cov_px2 + covariance.profile_px2(offsets, steps)[:, None, None] * np.eye(2)
         if recover.largest_sigma_px(cov) > p.max_vertex_sigma_px:
             return None
-        xs, ys = v[:, 0], v[:, 1]
-        self._seed = (int(xs.mean()), int(ys.mean()),
-                      max(4, int(0.25 * min(np.ptp(xs), np.ptp(ys)))))
+        self._seed = _seed_around(v)
         area = recover.quad_area(v)
         return Detection(True, v, min(area / (W * H), 1.0), fit.rms_px, "", False, None, cov)
 
@@ -580,10 +577,7 @@ class RhombusExtractor:
         det = self._paper_from(image, seed, tracked)
         if det.found:
             assert det.vertices_px is not None
-            (x0, y0), (x1, y1), (x2, y2), (x3, y3) = det.vertices_px.tolist()  # plain floats:
-            xs, ys = (x0, x1, x2, x3), (y0, y1, y2, y3)  # numpy's reductions cost more here
-            radius = max(4, int(0.25 * min(max(xs) - min(xs), max(ys) - min(ys))))
-            self._seed = (int(sum(xs) / 4), int(sum(ys) / 4), radius)
+            self._seed = _seed_around(det.vertices_px)
         else:
             self._seed = None
         return det
@@ -733,6 +727,15 @@ def _reason(status: int, s: np.ndarray, prm: np.ndarray) -> str:
         return (f"the column and row scans disagree by {s[m.GAP]:.1f} px (a shadow's "
                 f"boundary along an edge, or blur)")
     return _refusals[status]
+
+
+def _seed_around(v: np.ndarray) -> tuple[int, int, int]:
+    """The next frame's seed (x, y, search radius px) at the vertices v (4, 2) px found by a
+    route other than ``measure.measure`` (which returns its own)."""
+    (x0, y0), (x1, y1), (x2, y2), (x3, y3) = v.tolist()  # plain floats: numpy's reductions
+    xs, ys = (x0, x1, x2, x3), (y0, y1, y2, y3)  # cost more here
+    radius = max(4, int(0.25 * min(max(xs) - min(xs), max(ys) - min(ys))))
+    return int(sum(xs) / 4), int(sum(ys) / 4), radius
 
 
 def _view_refusal(v: np.ndarray, prm: np.ndarray, width: int, height: int) -> str:
