@@ -20,6 +20,7 @@ from services.vertex_extractor import measure
 from services.vertex_extractor.extractor import (
     ExtractorParams,
     RhombusExtractor,
+    read_only,
     sharpest_corner_deg,
 )
 from services.vertex_extractor.lines import diagonal_shift
@@ -33,7 +34,7 @@ def _kept_frame(name: str) -> tuple[np.ndarray, np.ndarray]:
     image = cv2.imread(str(HARD_FRAMES / f"{name}.png"))
     assert image is not None, f"{HARD_FRAMES / name}.png is missing or unreadable"
     truth = json.loads((HARD_FRAMES / f"{name}.json").read_text())["vertices_px"]
-    return image, np.array(truth)
+    return read_only(image), np.array(truth)  # (as the kernels are compiled for)
 
 
 pytestmark = pytest.mark.skipif(not textures.have_photos(),
@@ -672,8 +673,8 @@ def test_a_small_marker_refused_as_off_the_columns_gets_the_small_markers_second
     ex = RhombusExtractor()
     lut, model = ex.params.colour.lut, ex.params.colour.vector
     cx, cy = r.vertices_px.mean(0).astype(int)
-    assert measure.measure(r.image, int(cx), int(cy), 8, lut, model, ex._prm)[0] == \
-        measure.ROWS_OFF
+    assert measure.measure(read_only(r.image), int(cx), int(cy), 8, lut, model,
+                           ex._prm)[0] == measure.ROWS_OFF
     det = ex.extract(r.image)
     assert det.found, det.reason
     assert np.linalg.norm(det.vertices_px - r.vertices_px, axis=1).max() < 1.0
@@ -702,8 +703,7 @@ def test_an_uncertain_column_scan_is_not_found_on_the_narrow_second_try_alone():
     ex = RhombusExtractor()
     det = ex.extract(r.image)
     assert not det.found and "disagree" in det.reason, det.reason
-    image = r.image.view()
-    image.flags.writeable = False
+    image = read_only(r.image)
     x, y, radius, _ = ex._coarse_search(image)[0]  # type: ignore[index]
     narrow = ex._prm.copy()
     narrow[measure.WINDOW] = ex.params.narrow_window

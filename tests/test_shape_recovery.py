@@ -11,8 +11,8 @@ import pytest
 from services.core.camera import CameraModel
 from services.core.mounts import Geometry
 from services.core.projection import project_px
-from services.vertex_extractor import recover
-from services.vertex_extractor.extractor import ExtractorParams, RhombusExtractor
+from services.vertex_extractor import recover, scan
+from services.vertex_extractor.extractor import ExtractorParams, RhombusExtractor, read_only
 
 CAMERA = CameraModel.paper()
 
@@ -90,7 +90,7 @@ def _kept(name: str) -> tuple[np.ndarray, np.ndarray, CameraModel]:
     K[0, 2] -= x0
     K[1, 2] -= y0
     crop = CameraModel(K, CAMERA.dist.copy(), image.shape[1], image.shape[0])
-    return image, np.array(meta["vertices_px"]), crop
+    return read_only(image), np.array(meta["vertices_px"]), crop  # (as the kernels take it)
 
 
 @pytest.mark.parametrize("name", HIDDEN)
@@ -124,6 +124,24 @@ def test_a_highlight_over_two_edges_leaves_the_rhombus_unfitted_with_its_reason(
     assert not ex.extract(image).found
     seeds = ex._coarse_search(image)
     assert not isinstance(seeds, str)
-    why = recover.recover(image, seeds[0][:3], ex.params.colour.lut, ex.params.colour.vector,
+    colour = ex.params.colour
+    why = recover.recover(image, seeds[0][:3], colour.lut, colour.vector,
                           ex._loose[0], camera, Geometry().marker_points(), lambda quad: "")
     assert why == "the rhombus fitted to its edge points rests on 2 edges, not 3", why
+
+
+def test_the_fit_reads_the_columns_through_the_line_fits_compiled_scan() -> None:
+    """``recover.edge_points`` scans through ``measure.column_scan``, as the line fits do:
+    no other compiled variant of the column scan (one cost half a minute's compile at the
+    first marker a deployment with intrinsics refused for want of edge points)."""
+    image, _, _ = _kept("highlight_156")
+    ex = RhombusExtractor()
+    ex.extract(image)  # the line fits' scans
+    before = set(scan.scan.signatures)
+    seeds = ex._coarse_search(image)
+    assert not isinstance(seeds, str)
+    x, y, radius, _ = seeds[0]
+    colour = ex.params.colour
+    found = recover.edge_points(image, x, y, radius, colour.lut, colour.vector, ex._prm)
+    assert found is not None and sum(len(chain) for chain in found[0]) > 0
+    assert set(scan.scan.signatures) == before

@@ -369,11 +369,7 @@ class RhombusExtractor:
         if image.ndim != 3 or image.shape[2] != 3 or image.dtype != np.uint8:
             return _miss(f"expected an H x W x 3 uint8 BGR image, got shape {image.shape} "
                          f"{image.dtype}")
-        if not image.flags.c_contiguous:
-            image = np.ascontiguousarray(image)
-        if image.flags.writeable:  # the kernels compiled once, for read-only frames (the
-            image = image.view()  # service's): each variant costs about a minute at first
-            image.flags.writeable = False
+        image = read_only(np.ascontiguousarray(image))
         if self._seed is not None:
             det = self._extract_from(image, self._seed, tracked=True)
             if det.found:
@@ -770,6 +766,17 @@ _verdicts = {
     lines.AREA_MISMATCH: "quadrilateral area {area:.0f} px does not match the blob's {blob} px "
                          "(partly hidden?)",
 }
+
+
+def read_only(image: np.ndarray) -> np.ndarray:
+    """``image`` as a read-only view (itself when it is one already): the kernels are
+    compiled once, for read-only frames (the service's, from the bus); a writeable frame
+    handed to a kernel directly costs about a minute's compile of another variant at first."""
+    if not image.flags.writeable:
+        return image
+    view = image.view()
+    view.flags.writeable = False
+    return view
 
 
 def warm_up(params: ExtractorParams | None = None) -> None:

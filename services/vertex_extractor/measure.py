@@ -446,14 +446,7 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
     sx, sy = scan.find_seed(img, x, y, radius, lut, m)
     if sx < 0:
         return NO_SEED, stats, v, cov, np.empty((0, 2)), np.empty((0, 2))
-    window = int(prm[WINDOW])
-    outer = int(prm[OUTER])
-    # the columns read through a view typed like the rows' transposed one (any layout): one
-    # compiled scan for both (about half the first compile, no slower)
-    status, area, n, contrast, u, d, box = scan.scan(
-        img[0:H, 0:W], sx, sy, int(prm[MIN_LEN]), int(prm[DX]), window, lut, m,
-        int(prm[EDGE]), outer, prm[SHADED_SPREAD], int(prm[SHADED_DEPTH]),
-        prm[SHADED_GRADIENT] > 0)
+    status, area, n, contrast, u, d, box = column_scan(img, sx, sy, lut, m, prm)
     found, u, d = _judge(img, status, area, n, contrast, u, d, W, H, prm, -1, -1, stats, v,
                          cov)
     if found == UNCERTAIN and prm[FUSE] > 0:  # the rows may know the vertex better
@@ -519,6 +512,21 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
             stats[CHECKED] = 1.0
     _seed(v, stats)
     return FOUND, stats, v, cov, u, d
+
+
+@njit()
+def column_scan(img: np.ndarray, sx: int, sy: int, lut: np.ndarray, m: np.ndarray,
+                prm: np.ndarray) -> tuple[int, int, int, float, np.ndarray, np.ndarray,
+                                          np.ndarray]:
+    """``scan.scan`` along the columns from the marker pixel (sx, sy), with the parameters
+    ``prm``. The image is read through a view typed like the rows' transposed one (any
+    layout): one compiled scan for both (about half the first compile, no slower), and for
+    every caller (``recover.edge_points`` too: another variant would cost half a minute's
+    compile at its first call)."""
+    H, W = img.shape[0], img.shape[1]
+    return scan.scan(img[0:H, 0:W], sx, sy, int(prm[MIN_LEN]), int(prm[DX]),
+                     int(prm[WINDOW]), lut, m, int(prm[EDGE]), int(prm[OUTER]),
+                     prm[SHADED_SPREAD], int(prm[SHADED_DEPTH]), prm[SHADED_GRADIENT] > 0)
 
 
 @njit()

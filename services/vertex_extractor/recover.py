@@ -114,11 +114,7 @@ def edge_points(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray,
     sx, sy = scan.find_seed(img, x, y, radius, lut, m)
     if sx < 0:
         return None
-    status, _, _, _, u, d, box = scan.scan(
-        img, sx, sy, int(prm[measure.MIN_LEN]), int(prm[measure.DX]),
-        int(prm[measure.WINDOW]), lut, m, int(prm[measure.EDGE]), int(prm[measure.OUTER]),
-        prm[measure.SHADED_SPREAD], int(prm[measure.SHADED_DEPTH]),
-        prm[measure.SHADED_GRADIENT] > 0)
+    status, _, _, _, u, d, box = measure.column_scan(img, sx, sy, lut, m, prm)
     if status == scan.BORDER:
         return None
     cu, cd, _, _ = lines.finite_points(u, d)
