@@ -57,9 +57,16 @@ def test_conversions():
     assert b"humanoid (truth)" not in scene
 
 
-def _ws_messages(port: int, want: set[str], timeout: float = 10.0) -> dict[str, str]:
-    """Connect as a Foxglove client (raw WebSocket) and collect advertised topics with their
-    schema names."""
+def _recv(s: socket.socket) -> bytes:
+    """The next bytes from ``s``; a closed connection is an error, never an endless loop."""
+    data = s.recv(65536)
+    if not data:
+        raise ConnectionError("the server closed the connection")
+    return data
+
+
+def _handshake(port: int, timeout: float) -> tuple[socket.socket, bytes]:
+    """A WebSocket connection as a Foxglove client, and the bytes after the server's answer."""
     s = socket.create_connection(("127.0.0.1", port), timeout=timeout)
     key = base64.b64encode(os.urandom(16)).decode()
     s.sendall((f"GET / HTTP/1.1\r\nHost: 127.0.0.1:{port}\r\nUpgrade: websocket\r\n"
@@ -68,33 +75,50 @@ def _ws_messages(port: int, want: set[str], timeout: float = 10.0) -> dict[str, 
                "Sec-WebSocket-Protocol: foxglove.sdk.v1, foxglove.websocket.v1\r\n\r\n"
                ).encode())
     buf = b""
-    while b"\r\n\r\n" not in buf:
-        buf += s.recv(4096)
+    try:
+        while b"\r\n\r\n" not in buf:
+            buf += _recv(s)
+    except OSError:
+        s.close()
+        raise
     head, buf = buf.split(b"\r\n\r\n", 1)
     assert b" 101 " in head.split(b"\r\n")[0], head
-    topics: dict[str, str] = {}
+    return s, buf
+
+
+def _ws_messages(port: int, want: set[str], timeout: float = 10.0) -> dict[str, str]:
+    """Connect as a Foxglove client (raw WebSocket) and collect advertised topics with their
+    schema names (the handshake tried again until ``timeout`` s where the server drops it)."""
     end = time.monotonic() + timeout
-    while not want <= set(topics) and time.monotonic() < end:
-        while len(buf) < 2:
-            buf += s.recv(65536)
-        opcode, n = buf[0] & 0x0F, buf[1] & 0x7F
-        off = 2
-        if n == 126:
-            while len(buf) < 4:
-                buf += s.recv(65536)
-            n, off = int.from_bytes(buf[2:4], "big"), 4
-        elif n == 127:
-            while len(buf) < 10:
-                buf += s.recv(65536)
-            n, off = int.from_bytes(buf[2:10], "big"), 10
-        while len(buf) < off + n:
-            buf += s.recv(65536)
-        payload, buf = buf[off:off + n], buf[off + n:]
-        if opcode == 1:
-            msg = json.loads(payload)
-            if msg.get("op") == "advertise":
-                topics |= {c["topic"]: c.get("schemaName", "") for c in msg["channels"]}
-    s.close()
+    while True:
+        try:
+            s, buf = _handshake(port, timeout)
+            break
+        except OSError as e:
+            assert time.monotonic() < end, f"no WebSocket handshake in {timeout} s: {e}"
+            time.sleep(0.2)
+    topics: dict[str, str] = {}
+    with s:
+        while not want <= set(topics) and time.monotonic() < end:
+            while len(buf) < 2:
+                buf += _recv(s)
+            opcode, n = buf[0] & 0x0F, buf[1] & 0x7F
+            off = 2
+            if n == 126:
+                while len(buf) < 4:
+                    buf += _recv(s)
+                n, off = int.from_bytes(buf[2:4], "big"), 4
+            elif n == 127:
+                while len(buf) < 10:
+                    buf += _recv(s)
+                n, off = int.from_bytes(buf[2:10], "big"), 10
+            while len(buf) < off + n:
+                buf += _recv(s)
+            payload, buf = buf[off:off + n], buf[off + n:]
+            if opcode == 1:
+                msg = json.loads(payload)
+                if msg.get("op") == "advertise":
+                    topics |= {c["topic"]: c.get("schemaName", "") for c in msg["channels"]}
     return topics
 
 
@@ -106,7 +130,8 @@ def test_live_view_serves_the_camera_and_the_floor_plan(router, make_bus):
     frame = render_marker(0.3).image
 
     async def go() -> dict[str, str]:
-        task = asyncio.create_task(run_deployment(dep, duration=20))
+        # (cancelled once the topics are in: the duration only bounds a hung test)
+        task = asyncio.create_task(run_deployment(dep, duration=120))
         await wait_alive_async(bus.session, "viz")
         for k in range(10):
             publish_frame(bus, frame, k)
