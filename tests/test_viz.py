@@ -194,3 +194,42 @@ def test_the_official_foxglove_client_with_the_older_subprotocol_gets_every_chan
     assert got["/humanoid/pose"]["decoded"]["x"] == pytest.approx(POSE.x)
     assert got["/mission/state"]["schemaName"] == "shepherd.MissionState"
     assert got["/camera/image"]["bytes"] > 1000
+
+
+def test_a_client_connected_when_the_viz_stops_ends_without_an_error() -> None:
+    """The front's connection handler, cancelled with a client connected (the service
+    stopping), closes the client and ends: Python 3.11's server reported a cancelled
+    handler as an error, with a traceback at every stop with Foxglove connected."""
+    from services.viz.negotiate import serve_both_subprotocols
+    errors: list[dict] = []
+
+    async def sdk(r: asyncio.StreamReader, w: asyncio.StreamWriter) -> None:
+        await r.readuntil(b"\r\n\r\n")  # the SDK's server, as far as the handshake goes
+        w.write(b"HTTP/1.1 101 Switching Protocols\r\nUpgrade: websocket\r\n"
+                b"Sec-WebSocket-Protocol: foxglove.sdk.v1\r\n\r\n")
+        await w.drain()
+        await r.read()  # until the front closes its side
+        w.close()
+
+    async def go() -> bytes:
+        asyncio.get_running_loop().set_exception_handler(lambda _, ctx: errors.append(ctx))
+        upstream = await asyncio.start_server(sdk, "127.0.0.1", 0)
+        front = await serve_both_subprotocols("127.0.0.1", 0, upstream.sockets[0].getsockname()[1])
+        r, w = await asyncio.open_connection(*front.sockets[0].getsockname()[:2])
+        w.write(b"GET / HTTP/1.1\r\nHost: x\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                b"Sec-WebSocket-Protocol: foxglove.websocket.v1\r\n\r\n")
+        answer = await r.readuntil(b"\r\n\r\n")
+        handlers = [t for t in asyncio.all_tasks()
+                    if getattr(t.get_coro(), "__name__", "") == "_serve"]
+        assert len(handlers) == 1
+        handlers[0].cancel()  # what stopping the service does to it
+        closed = await asyncio.wait_for(r.read(), 5)  # the client is closed
+        assert closed == b""
+        w.close()
+        front.close()
+        upstream.close()
+        await asyncio.sleep(0.1)
+        return answer
+    answer = asyncio.run(go())
+    assert b" 101 " in answer and b"foxglove.websocket.v1" in answer  # (the older subprotocol)
+    assert errors == []

@@ -54,6 +54,19 @@ async def _pipe(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> N
 
 async def _serve(client_r: asyncio.StreamReader, client_w: asyncio.StreamWriter,
                  upstream: tuple[str, int]) -> None:
+    """One client's connection, passed through to ``upstream`` (the SDK's server). Cancelled
+    (the service stopping with a client connected), it closes the client and ends quietly:
+    Python 3.11's server reports a connection handler's cancellation as an error, with a
+    traceback on every stop."""
+    try:
+        await _pass_through(client_r, client_w, upstream)
+    except asyncio.CancelledError:
+        with contextlib.suppress(Exception):
+            client_w.close()
+
+
+async def _pass_through(client_r: asyncio.StreamReader, client_w: asyncio.StreamWriter,
+                        upstream: tuple[str, int]) -> None:
     try:
         head = await _read_head(client_r)
         legacy = LEGACY in _protocols(head) and SDK not in _protocols(head)
