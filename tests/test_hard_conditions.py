@@ -704,7 +704,7 @@ def test_an_uncertain_column_scan_is_not_found_on_the_narrow_second_try_alone():
     det = ex.extract(r.image)
     assert not det.found and "disagree" in det.reason, det.reason
     image = read_only(r.image)
-    x, y, radius, _ = ex._coarse_search(image)[0]  # type: ignore[index]
+    x, y, radius = ex._coarse_search(image)[0]  # type: ignore[misc]
     narrow = ex._prm.copy()
     narrow[measure.WINDOW] = ex.params.narrow_window
     status, stats, v, _, _, _ = measure.measure(image, x, y, radius, ex.params.colour.lut,

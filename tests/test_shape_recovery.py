@@ -125,7 +125,7 @@ def test_a_highlight_over_two_edges_leaves_the_rhombus_unfitted_with_its_reason(
     seeds = ex._coarse_search(image)
     assert not isinstance(seeds, str)
     colour = ex.params.colour
-    why = recover.recover(image, seeds[0][:3], colour.lut, colour.vector,
+    why = recover.recover(image, seeds[0], colour.lut, colour.vector,
                           ex._loose[0], camera, Geometry().marker_points(), lambda quad: "")
     assert why == "the rhombus fitted to its edge points rests on 2 edges, not 3", why
 
@@ -140,7 +140,7 @@ def test_the_fit_reads_the_columns_through_the_line_fits_compiled_scan() -> None
     before = set(scan.scan.signatures)
     seeds = ex._coarse_search(image)
     assert not isinstance(seeds, str)
-    x, y, radius, _ = seeds[0]
+    x, y, radius = seeds[0]
     colour = ex.params.colour
     found = recover.edge_points(image, x, y, radius, colour.lut, colour.vector, ex._prm)
     assert found is not None and sum(len(chain) for chain in found[0]) > 0

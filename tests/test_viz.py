@@ -65,6 +65,13 @@ def _recv(s: socket.socket) -> bytes:
     return data
 
 
+def _fill(s: socket.socket, buf: bytes, n: int) -> bytes:
+    """``buf`` with bytes from ``s`` until it holds at least ``n``."""
+    while len(buf) < n:
+        buf += _recv(s)
+    return buf
+
+
 def _handshake(port: int, timeout: float) -> tuple[socket.socket, bytes]:
     """A WebSocket connection as a Foxglove client, and the bytes after the server's answer."""
     s = socket.create_connection(("127.0.0.1", port), timeout=timeout)
@@ -100,20 +107,16 @@ def _ws_messages(port: int, want: set[str], timeout: float = 10.0) -> dict[str, 
     topics: dict[str, str] = {}
     with s:
         while not want <= set(topics) and time.monotonic() < end:
-            while len(buf) < 2:
-                buf += _recv(s)
+            buf = _fill(s, buf, 2)
             opcode, n = buf[0] & 0x0F, buf[1] & 0x7F
             off = 2
             if n == 126:
-                while len(buf) < 4:
-                    buf += _recv(s)
+                buf = _fill(s, buf, 4)
                 n, off = int.from_bytes(buf[2:4], "big"), 4
             elif n == 127:
-                while len(buf) < 10:
-                    buf += _recv(s)
+                buf = _fill(s, buf, 10)
                 n, off = int.from_bytes(buf[2:10], "big"), 10
-            while len(buf) < off + n:
-                buf += _recv(s)
+            buf = _fill(s, buf, off + n)
             payload, buf = buf[off:off + n], buf[off + n:]
             if opcode == 1:
                 msg = json.loads(payload)

@@ -380,7 +380,7 @@ class RhombusExtractor:
             return _miss(seeds)
         return self._first_marker(image, seeds)
 
-    def _first_marker(self, image: np.ndarray, seeds: list[tuple[int, int, int, int]]
+    def _first_marker(self, image: np.ndarray, seeds: list[tuple[int, int, int]]
                       ) -> Detection:
         """The one blob, largest first, that passes as the marker. Another blob that passes
         too, whatever its size, with edges about as straight (residual within 3x + 0.1 px),
@@ -388,14 +388,14 @@ class RhombusExtractor:
         passes as the marker looks bigger or smaller with its distance: docs/measured.md "The
         marker's shape")."""
         first: Detection | None = None
-        for i, (x, y, radius, _) in enumerate(seeds):
-            det = self._extract_from(image, (x, y, radius), tracked=False)
+        for i, seed_px in enumerate(seeds):
+            det = self._extract_from(image, seed_px, tracked=False)
             if not det.found:
                 first = first or det
                 continue
             seed = self._seed
-            for x2, y2, r2, _ in seeds[i + 1:]:
-                other = self._extract_from(image, (x2, y2, r2), tracked=False)
+            for other_px in seeds[i + 1:]:
+                other = self._extract_from(image, other_px, tracked=False)
                 if not other.found or _same_marker(det, other):
                     continue  # (a highlight or an arm splits one marker's blob in two)
                 lo, hi = sorted((det.residual_px, other.residual_px))
@@ -411,8 +411,8 @@ class RhombusExtractor:
         assert first is not None
         return first
 
-    def _coarse_search(self, image: np.ndarray) -> list[tuple[int, int, int, int]] | str:
-        """Seeds (x, y, radius px, grid cells) on the marker-coloured blobs of a 1-in-s pixel
+    def _coarse_search(self, image: np.ndarray) -> list[tuple[int, int, int]] | str:
+        """Seeds (x, y, search radius px) on the marker-coloured blobs of a 1-in-s pixel
         grid, largest first (at most ``max_candidates``)."""
         s = self.params.coarse_step
         colour = self.params.colour
@@ -434,7 +434,7 @@ class RhombusExtractor:
             if labels[cy, cx] != label:  # not convex: any cell of the blob
                 ys, xs = np.nonzero(labels == label)
                 cx, cy = int(xs[len(xs) // 2]), int(ys[len(ys) // 2])
-            seeds.append((s // 2 + (cx + j0) * s, s // 2 + (cy + i0) * s, s, int(areas[k])))
+            seeds.append((s // 2 + (cx + j0) * s, s // 2 + (cy + i0) * s, s))
         return seeds
 
     def _extract_from(self, image: np.ndarray, seed: tuple[int, int, int],
