@@ -461,6 +461,8 @@ class RhombusExtractor:
             prm[measure.UNDER_HIGHLIGHT] = p.both_scans_under_highlight
             measured = measure.measure(image, *seed, lut, model, prm)
         det, biased = self._judge(image, measured, prm, test, tracked)
+        if det.found:
+            return det
         refused = int(measured[0])  # FOUND: refused by the profile or the shape test
         if biased and prm[measure.WINDOW] > p.narrow_window:
             narrow = self._narrow(prm)
@@ -509,10 +511,10 @@ class RhombusExtractor:
         v = fit.vertices_px
         # the profile across its edges, as a line fit's: an edge off its step, a vertex off
         # its edges' steps (a shadow's boundary) refuse; the rest adds to the uncertainty
-        offsets = profile.step_offsets(image, v, p.colour.lut)
-        steps = profile.vertex_steps(image, v, p.colour.lut, p.colour.vector)
-        if profile.odd_edge(offsets, p.max_step_offset_px, p.max_step_spread_px) >= 0 or \
-                profile.odd_vertex(steps, p.max_vertex_step_px)[0] >= 0:
+        offsets, steps, edge, vertex, _ = profile.examine(
+            image, v, p.colour.lut, p.colour.vector, p.max_step_offset_px,
+            p.max_step_spread_px, p.max_vertex_step_px)
+        if edge >= 0 or vertex >= 0:
             return None
         cov = fit.cov_px2 + covariance.profile_px2(offsets, steps)[:, None, None] * np.eye(2)
         if recover.largest_sigma_px(cov) > p.max_vertex_sigma_px:
@@ -542,8 +544,9 @@ class RhombusExtractor:
         if test is not None and (reason := test.refusal(v, cov)):
             self._seed = None
             return _miss(reason, tracked), False
-        offsets = profile.step_offsets(image, v, p.colour.lut)
-        k = profile.odd_edge(offsets, p.max_step_offset_px, p.max_step_spread_px)
+        offsets, steps, k, vertex, deviation = profile.examine(
+            image, v, p.colour.lut, p.colour.vector, p.max_step_offset_px,
+            p.max_step_spread_px, p.max_vertex_step_px)  # (one call: both tests)
         if k >= 0:
             self._seed = None
             return _miss(
@@ -551,8 +554,7 @@ class RhombusExtractor:
                 " edge is not a clean step: its profile crosses half way "
                 f"{offsets[k]:+.1f}"
                 " px from the fitted line (a shadow's boundary along it?)", tracked), True
-        steps = profile.vertex_steps(image, v, p.colour.lut, p.colour.vector)
-        k, deviation = profile.odd_vertex(steps, p.max_vertex_step_px)
+        k = vertex
         if k >= 0:  # (not tried again: a narrower window leaves the vertex as far off)
             self._seed = None
             return _miss(

@@ -80,7 +80,7 @@ def _median_at(img, bx, by, nx, ny, off, lo, inv, keep, lut, w, buf):  # type: i
 @njit()
 def step_offsets(img: np.ndarray, v: np.ndarray, lut: np.ndarray) -> np.ndarray:
     """``stretch_offsets`` of each edge's middle 70 %."""
-    return stretch_offsets(img, v, lut, 0.15, 0.85, MAX_POINTS)
+    return _offsets(img, v, lut, _direction(img, v, lut), 0.15, 0.85, MAX_POINTS)
 
 
 @njit()
@@ -92,10 +92,15 @@ def stretch_offsets(img: np.ndarray, v: np.ndarray, lut: np.ndarray, a0: float, 
     only where needed); NaN where it cannot be told (too few points with contrast, or no
     crossing within 1.5 px). ``a0``, ``a1``: the stretch of each edge read (shares of its
     length), at most ``max_points`` points on it."""
-    out = np.full(4, np.nan)
+    return _offsets(img, v, lut, _direction(img, v, lut), a0, a1, max_points)
+
+
+@njit(inline="always")
+def _direction(img, v, lut):  # type: ignore[no-untyped-def]
+    """The marker's chroma direction (B, G, R weights): its median linear colour at points
+    halfway to each vertex."""
     cx = 0.25 * (v[0, 0] + v[1, 0] + v[2, 0] + v[3, 0])
     cy = 0.25 * (v[0, 1] + v[1, 1] + v[2, 1] + v[3, 1])
-    # the marker's chroma: the median linear colour at points halfway to each vertex
     col = np.empty((3, 9))
     for i in range(9):
         s = 0.0 if i == 8 else (0.25 if i < 4 else 0.5)
@@ -103,7 +108,15 @@ def stretch_offsets(img: np.ndarray, v: np.ndarray, lut: np.ndarray, a0: float, 
         y = cy + s * (v[i % 4, 1] - cy)
         px = img[int(y + 0.5), int(x + 0.5)]
         col[0, i], col[1, i], col[2, i] = lut[px[0]], lut[px[1]], lut[px[2]]
-    w = chroma_direction(np.median(col[0]), np.median(col[1]), np.median(col[2]))
+    return chroma_direction(np.median(col[0]), np.median(col[1]), np.median(col[2]))
+
+
+@njit()
+def _offsets(img, v, lut, w, a0, a1, max_points):  # type: ignore[no-untyped-def]
+    """``stretch_offsets`` with the score direction ``w`` given."""
+    out = np.full(4, np.nan)
+    cx = 0.25 * (v[0, 0] + v[1, 0] + v[2, 0] + v[3, 0])
+    cy = 0.25 * (v[0, 1] + v[1, 1] + v[2, 1] + v[3, 1])
     n_off = OFFSETS.shape[0]
     j0 = n_off // 2  # offset 0
     bx, by = np.empty(MAX_POINTS), np.empty(MAX_POINTS)
@@ -171,10 +184,16 @@ def vertex_steps(img: np.ndarray, v: np.ndarray, lut: np.ndarray, m: np.ndarray
     """``stretch_offsets`` of the stretch of each edge next to each vertex (8: edge k next to
     vertex k, then edge k next to vertex k + 1), NaN where that vertex is hidden (an arm or
     a bar over it: no marker colour just inside it; its place then comes from the lines)."""
+    return _vertex_steps(img, v, lut, m, _direction(img, v, lut))
+
+
+@njit()
+def _vertex_steps(img, v, lut, m, w):  # type: ignore[no-untyped-def]
+    """``vertex_steps`` with the score direction ``w`` given."""
     a0, a1 = NEAR_VERTEX
     out = np.empty(8)
-    out[:4] = stretch_offsets(img, v, lut, a0, a1, NEAR_VERTEX_POINTS)
-    out[4:] = stretch_offsets(img, v, lut, 1.0 - a1, 1.0 - a0, NEAR_VERTEX_POINTS)
+    out[:4] = _offsets(img, v, lut, w, a0, a1, NEAR_VERTEX_POINTS)
+    out[4:] = _offsets(img, v, lut, w, 1.0 - a1, 1.0 - a0, NEAR_VERTEX_POINTS)
     H, W = img.shape[0], img.shape[1]
     cx = 0.25 * (v[0, 0] + v[1, 0] + v[2, 0] + v[3, 0])
     cy = 0.25 * (v[0, 1] + v[1, 1] + v[2, 1] + v[3, 1])
@@ -191,17 +210,18 @@ def vertex_steps(img: np.ndarray, v: np.ndarray, lut: np.ndarray, m: np.ndarray
     return out
 
 
+@njit()
 def odd_vertex(offsets: np.ndarray, max_deviation_px: float) -> tuple[int, float]:
     """The vertex (0-3) one of whose edges, next to it, steps further than
     ``max_deviation_px`` from the median of the eight stretches' offsets (``vertex_steps``),
     and that deviation; (-1, 0) for none. A shadow's boundary near a vertex bends the edge
     points there, and the vertex the lines give is then px off while the edges' middles are
     fine (``odd_edge`` does not see it)."""
-    o = offsets.tolist()
-    s = sorted(0.0 if math.isnan(x) else x for x in o)  # (plain floats: numpy costs more)
+    s = np.sort(np.where(np.isnan(offsets), 0.0, offsets))
     median = 0.5 * (s[3] + s[4])
     odd, worst = -1, max_deviation_px
-    for i, x in enumerate(o):
+    for i in range(offsets.shape[0]):
+        x = offsets[i]
         if not math.isnan(x) and abs(x - median) > worst:
             odd, worst = (i if i < 4 else (i - 3) % 4), abs(x - median)
     return odd, (worst if odd >= 0 else 0.0)
@@ -213,21 +233,37 @@ def odd_vertex(offsets: np.ndarray, max_deviation_px: float) -> tuple[int, float
 OUTWARD = 1.6
 
 
+@njit()
 def odd_edge(offsets: np.ndarray, max_offset_px: float, max_spread_px: float) -> int:
     """The edge (0-3) whose step lies more than ``max_offset_px`` inside its fitted line
     (``OUTWARD`` times that beyond it) *and* more than ``max_spread_px`` from the four edges'
     median offset, the furthest such; -1 for none. A blurred marker's edges all lie a little
     off their steps alike (the window's truncation of a wide ramp); a shadow's boundary along
-    one edge moves that edge alone. (Plain floats: numpy costs more on four numbers.)"""
-    o = [0.0 if math.isnan(x) else x for x in offsets.tolist()]
-    s = sorted(o)
+    one edge moves that edge alone."""
+    o = np.where(np.isnan(offsets), 0.0, offsets)
+    s = np.sort(o)
     median = 0.5 * (s[1] + s[2])
     odd, worst = -1, 0.0
-    for k, x in enumerate(o):
+    for k in range(4):
+        x = o[k]
         if ((x < -max_offset_px or x > OUTWARD * max_offset_px)
                 and abs(x - median) > max_spread_px and abs(x) > worst):
             odd, worst = k, abs(x)
     return odd
+
+
+@njit()
+def examine(img: np.ndarray, v: np.ndarray, lut: np.ndarray, m: np.ndarray,
+            max_offset_px: float, max_spread_px: float, max_vertex_step_px: float
+            ) -> tuple[np.ndarray, np.ndarray, int, int, float]:
+    """Both profile tests of the quadrilateral v (4, 2) px in one call (the extractor's, per
+    detection): ``step_offsets`` (4), ``vertex_steps`` (8), ``odd_edge`` of the first and
+    ``odd_vertex`` of the second (the vertex and its deviation px)."""
+    w = _direction(img, v, lut)
+    offsets = _offsets(img, v, lut, w, 0.15, 0.85, MAX_POINTS)
+    steps = _vertex_steps(img, v, lut, m, w)
+    vertex, deviation = odd_vertex(steps, max_vertex_step_px)
+    return offsets, steps, odd_edge(offsets, max_offset_px, max_spread_px), vertex, deviation
 
 
 def warm_up() -> None:
@@ -236,5 +272,7 @@ def warm_up() -> None:
     img.flags.writeable = False
     v = np.array([[10.0, 20.0], [20.0, 10.0], [30.0, 20.0], [20.0, 30.0]])
     lut = np.linspace(0.0, 255.0, 256)
+    m = np.array([0.615, 0.02, 1.0, 0.0, 1.0, 12.75])
     step_offsets(img, v, lut)
-    vertex_steps(img, v, lut, np.array([0.615, 0.02, 1.0, 0.0, 1.0, 12.75]))
+    vertex_steps(img, v, lut, m)
+    examine(img, v, lut, m, 0.5, 0.3, 1.0)
