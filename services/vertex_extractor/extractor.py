@@ -544,21 +544,20 @@ class RhombusExtractor:
         if test is not None and (reason := test.refusal(v, cov)):
             self._seed = None
             return _miss(reason, tracked), False
-        offsets, steps, k, vertex, deviation = profile.examine(
+        offsets, steps, edge, vertex, deviation = profile.examine(
             image, v, p.colour.lut, p.colour.vector, p.max_step_offset_px,
             p.max_step_spread_px, p.max_vertex_step_px)  # (one call: both tests)
-        if k >= 0:
+        if edge >= 0:
             self._seed = None
             return _miss(
-                f"the {_EDGE_NAMES[k]}"
+                f"the {_EDGE_NAMES[edge]}"
                 " edge is not a clean step: its profile crosses half way "
-                f"{offsets[k]:+.1f}"
+                f"{offsets[edge]:+.1f}"
                 " px from the fitted line (a shadow's boundary along it?)", tracked), True
-        k = vertex
-        if k >= 0:  # (not tried again: a narrower window leaves the vertex as far off)
+        if vertex >= 0:  # (not tried again: a narrower window leaves the vertex as far off)
             self._seed = None
             return _miss(
-                f"the {_VERTEX_NAMES[k]}"
+                f"the {_VERTEX_NAMES[vertex]}"
                 " vertex is off its edges' steps: next to it an edge's profile crosses half way "
                 f"{deviation:.1f}"
                 " px off the others (a shadow's boundary near the vertex?)", tracked), False
