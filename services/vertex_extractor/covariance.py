@@ -68,8 +68,8 @@ def _median_dev(x: np.ndarray, out: np.ndarray) -> float:
 @njit()
 def profile_px2(edge_offsets_px: np.ndarray, vertex_steps_px: np.ndarray) -> np.ndarray:
     """Each vertex's (4) variance px², each way, from the profile across its edges (the
-    floor included): ``profile.step_offsets`` (4: edge k from vertex k to k + 1) and
-    ``profile.vertex_steps`` (8: edge k next to vertex k, then edge k next to vertex k + 1;
+    floor included): ``profile.examine``'s edge offsets (4: edge k from vertex k to k + 1)
+    and ``profile.vertex_steps`` (8: edge k next to vertex k, then edge k next to vertex k + 1;
     NaN where unknown)."""
     edge_dev = np.empty(4)
     step_dev = np.empty(8)

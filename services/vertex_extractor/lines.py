@@ -337,6 +337,11 @@ def _line_stats(points: np.ndarray, nx: float, ny: float, d: float
     return nx, ny, d, max(rms, MIN_SIGMA_PX), count, cx, cy, spread, sq, pos, neg
 
 
+#: splits whose cost is within this share of the least (and of band²) are ties
+#: (``robust_split``)
+TIE = 1e-9
+
+
 @njit()
 def robust_split(points: np.ndarray, k: int, a: np.ndarray, b: np.ndarray, band: float) -> int:
     """The split index (points [:k] on line a, [k:] on line b) with the least truncated
@@ -374,11 +379,6 @@ def robust_split(points: np.ndarray, k: int, a: np.ndarray, b: np.ndarray, band:
             if abs(x - crossing) < near:
                 near, best_k = abs(x - crossing), j
     return best_k
-
-
-#: splits whose cost is within this share of the least (and of band²) are ties
-#: (``robust_split``)
-TIE = 1e-9
 
 
 HIDDEN_EDGE, OUTSIDE_POINTS = 3, 4  # further fit statuses

@@ -77,24 +77,6 @@ def _median_at(img, bx, by, nx, ny, off, lo, inv, keep, lut, w, buf):  # type: i
     return np.median(buf[:keep])
 
 
-@njit()
-def step_offsets(img: np.ndarray, v: np.ndarray, lut: np.ndarray) -> np.ndarray:
-    """``stretch_offsets`` of each edge's middle 70 %."""
-    return _offsets(img, v, lut, _direction(img, v, lut), 0.15, 0.85, MAX_POINTS)
-
-
-@njit()
-def stretch_offsets(img: np.ndarray, v: np.ndarray, lut: np.ndarray, a0: float, a1: float,
-                    max_points: int) -> np.ndarray:
-    """For each edge of the quadrilateral v (4, 2) px (L, T, R, B), how far (px, outward
-    positive) from the fitted line its median profile crosses half way between the inside
-    and outside levels (walking from the line towards the crossing, so the profile is read
-    only where needed); NaN where it cannot be told (too few points with contrast, or no
-    crossing within 1.5 px). ``a0``, ``a1``: the stretch of each edge read (shares of its
-    length), at most ``max_points`` points on it."""
-    return _offsets(img, v, lut, _direction(img, v, lut), a0, a1, max_points)
-
-
 @njit(inline="always")
 def _direction(img, v, lut):  # type: ignore[no-untyped-def]
     """The marker's chroma direction (B, G, R weights): its median linear colour at points
@@ -113,7 +95,12 @@ def _direction(img, v, lut):  # type: ignore[no-untyped-def]
 
 @njit()
 def _offsets(img, v, lut, w, a0, a1, max_points):  # type: ignore[no-untyped-def]
-    """``stretch_offsets`` with the score direction ``w`` given."""
+    """For each edge of the quadrilateral v (4, 2) px (L, T, R, B), how far (px, outward
+    positive) from the fitted line its median profile along ``w`` (``_direction``) crosses
+    half way between the inside and outside levels (walking from the line towards the
+    crossing, so the profile is read only where needed); NaN where it cannot be told (too
+    few points with contrast, or no crossing within 1.5 px). ``a0``, ``a1``: the stretch of
+    each edge read (shares of its length), at most ``max_points`` points on it."""
     out = np.full(4, np.nan)
     cx = 0.25 * (v[0, 0] + v[1, 0] + v[2, 0] + v[3, 0])
     cy = 0.25 * (v[0, 1] + v[1, 1] + v[2, 1] + v[3, 1])
@@ -181,7 +168,7 @@ VISIBLE_AT = (0.12, 0.18)
 @njit()
 def vertex_steps(img: np.ndarray, v: np.ndarray, lut: np.ndarray, m: np.ndarray
                  ) -> np.ndarray:
-    """``stretch_offsets`` of the stretch of each edge next to each vertex (8: edge k next to
+    """``_offsets`` of the stretch of each edge next to each vertex (8: edge k next to
     vertex k, then edge k next to vertex k + 1), NaN where that vertex is hidden (an arm or
     a bar over it: no marker colour just inside it; its place then comes from the lines)."""
     return _vertex_steps(img, v, lut, m, _direction(img, v, lut))
@@ -257,8 +244,9 @@ def examine(img: np.ndarray, v: np.ndarray, lut: np.ndarray, m: np.ndarray,
             max_offset_px: float, max_spread_px: float, max_vertex_step_px: float
             ) -> tuple[np.ndarray, np.ndarray, int, int, float]:
     """Both profile tests of the quadrilateral v (4, 2) px in one call (the extractor's, per
-    detection): ``step_offsets`` (4), ``vertex_steps`` (8), ``odd_edge`` of the first and
-    ``odd_vertex`` of the second (the vertex and its deviation px)."""
+    detection): ``_offsets`` of each edge's middle 70 % (4), ``vertex_steps`` (8),
+    ``odd_edge`` of the first and ``odd_vertex`` of the second (the vertex and its
+    deviation px)."""
     w = _direction(img, v, lut)
     offsets = _offsets(img, v, lut, w, 0.15, 0.85, MAX_POINTS)
     steps = _vertex_steps(img, v, lut, m, w)
@@ -272,7 +260,4 @@ def warm_up() -> None:
     img.flags.writeable = False
     v = np.array([[10.0, 20.0], [20.0, 10.0], [30.0, 20.0], [20.0, 30.0]])
     lut = np.linspace(0.0, 255.0, 256)
-    m = np.array([0.615, 0.02, 1.0, 0.0, 1.0, 12.75])
-    step_offsets(img, v, lut)
-    vertex_steps(img, v, lut, m)
-    examine(img, v, lut, m, 0.5, 0.3, 1.0)
+    examine(img, v, lut, np.array([0.615, 0.02, 1.0, 0.0, 1.0, 12.75]), 0.5, 0.3, 1.0)
