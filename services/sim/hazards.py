@@ -137,6 +137,36 @@ def apply_foreground(img: np.ndarray, h: Hazards, vertices_px: np.ndarray,
     return hidden
 
 
+#: an 8-bit channel at or above this has clipped (sRGB; the extractor's ``HALO_CLIPPED``)
+CLIPPED_LEVEL = 250
+CLIPPED_INSET_PX = 2.5  # how far inside each edge its ink is read: past the blur's ramp
+
+
+def clipped_edge_share(image: np.ndarray, vertices_px: np.ndarray, samples: int = 40
+                       ) -> np.ndarray:
+    """Per edge (left-top, top-right, right-bottom, bottom-left), the share of its length
+    (``samples`` points over its middle 90 %) along which the marker's ink clips in some
+    channel ``CLIPPED_INSET_PX`` px inside it: a glossy print's highlight. There the edge
+    cannot be measured without bias (clipping after the blur moves the half-way crossing by
+    the unknown overexposure) and the extractor leaves its points out; a line needs half an
+    edge's points, so an edge clipped over half its length is as hidden as one under an arm.
+    ``image``: the frame (H, W, 3) uint8; ``vertices_px`` (4, 2) its true vertices."""
+    H, W = image.shape[:2]
+    v = np.asarray(vertices_px, np.float64)
+    centre = v.mean(axis=0)
+    t = np.linspace(0.05, 0.95, samples)[:, None]
+    share = np.zeros(4)
+    for k in range(4):
+        p, q = v[k], v[(k + 1) % 4]
+        normal = np.array([q[1] - p[1], p[0] - q[0]]) / max(float(np.linalg.norm(q - p)), 1e-9)
+        if normal @ (0.5 * (p + q) - centre) > 0:
+            normal = -normal  # inward
+        at = np.rint(p + t * (q - p) + CLIPPED_INSET_PX * normal).astype(np.int64)
+        x, y = np.clip(at[:, 0], 0, W - 1), np.clip(at[:, 1], 0, H - 1)
+        share[k] = float(np.mean(image[y, x].max(axis=1) >= CLIPPED_LEVEL))
+    return share
+
+
 def apply_optics(img: np.ndarray, h: Hazards, vertices_px: np.ndarray | None
                  ) -> tuple[np.ndarray, np.ndarray | None]:
     """Defocus and rolling shutter on the linear scene; returns it and the moved vertices."""
