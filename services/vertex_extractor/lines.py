@@ -72,11 +72,13 @@ def best_split(points: np.ndarray, min_points: int) -> int:
 
 @njit()
 def huber_line(points: np.ndarray, c: float = 1.345, iterations: int = 10,
-               scaled: bool = True) -> tuple[float, float, float, float, int]:
+               scaled: bool = True, inliers: bool = True
+               ) -> tuple[float, float, float, float, int]:
     """Huber-weighted TLS line through points (N >= 2, 2) px by IRLS.
 
     Returns (nx, ny, d, sum of squared distances of the inliers, inlier count); inliers are
-    within 3 robust sigmas (at least 0.25 px) of the line, for the residual figure.
+    within 3 robust sigmas (at least 0.25 px) of the line, for the residual figure (0, 0
+    where not ``inliers``: a caller that judges the line itself skips their median).
     """
     n = points.shape[0]
     w = np.ones(n)
@@ -111,6 +113,8 @@ def huber_line(points: np.ndarray, c: float = 1.345, iterations: int = 10,
             w[i] = 1.0 if a <= c * scale else c * scale / a
         if it > 0 and moved < 1e-9:
             break
+    if not inliers:
+        return nx, ny, d, 0.0, 0
     r2 = r * r
     limit = max(9.0 * 1.4826 ** 2 * np.median(r2), 0.0625)
     sq, count = 0.0, 0
@@ -268,13 +272,14 @@ def robust_line(points: np.ndarray) -> tuple[float, float, float, float, int, fl
     n = points.shape[0]
     r = np.empty(n)
     w = np.ones(n)
-    nx, ny, d, _, _ = huber_line(points)
+    nx, ny, d, _, _ = huber_line(points, 1.345, 10, True, False)
     for i in range(n):
         r[i] = abs(nx * points[i, 0] + ny * points[i, 1] - d)
     top = r.max()
-    if top <= FAST_PX and top <= max(FAST_SIGMAS * max(1.4826 * np.median(r), MIN_SIGMA_PX),
-                                     0.25):
-        return _line_stats(points, nx, ny, d)  # no gross outliers: the Huber fit stands
+    if top <= FAST_PX:
+        sigma = max(1.4826 * np.median(r), MIN_SIGMA_PX)
+        if top <= max(FAST_SIGMAS * sigma, 0.25):  # no gross outliers: the Huber fit stands
+            return _line_stats(points, nx, ny, d, sigma)
     best = _trimmed_cost(points, nx, ny, d, r)
     q = n // 4
     for i in range(n):
@@ -297,19 +302,21 @@ def robust_line(points: np.ndarray) -> tuple[float, float, float, float, int, fl
         nx, ny, d = _tls(points, w)
         if abs(onx - nx) + abs(ony - ny) < 1e-10 and it > 2:
             break
-    return _line_stats(points, nx, ny, d)
+    return _line_stats(points, nx, ny, d, -1.0)
 
 
 @njit(inline="always")
-def _line_stats(points: np.ndarray, nx: float, ny: float, d: float
+def _line_stats(points: np.ndarray, nx: float, ny: float, d: float, sigma: float
                 ) -> tuple[float, float, float, float, int, float, float, float, float, int,
                            int]:
-    """``robust_line``'s result for the line (nx, ny, d)."""
+    """``robust_line``'s result for the line (nx, ny, d), whose robust sigma (px) is
+    ``sigma`` where known (else negative)."""
     n = points.shape[0]
     r = np.empty(n)
     for i in range(n):
         r[i] = nx * points[i, 0] + ny * points[i, 1] - d
-    sigma = max(1.4826 * np.median(np.abs(r)), MIN_SIGMA_PX)
+    if sigma < 0.0:
+        sigma = max(1.4826 * np.median(np.abs(r)), MIN_SIGMA_PX)
     band = max(INLIER_SIGMAS * sigma, 0.25)
     count = 0
     cx = cy = sq = 0.0
