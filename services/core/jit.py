@@ -24,7 +24,8 @@ import numba
 #: The ``services`` package folder, against which kernel sources are named.
 PACKAGE_ROOT = Path(__file__).resolve().parent.parent
 #: Every module that defines an ``@njit`` kernel (tests check that none is missing).
-KERNEL_SOURCES = ("core/jit.py", "core/projection.py", "vertex_extractor/colour.py",
+KERNEL_SOURCES = ("core/jit.py", "core/order.py", "core/projection.py",
+                  "vertex_extractor/colour.py",
                   "vertex_extractor/shape.py",
                   "vertex_extractor/scan.py", "vertex_extractor/lines.py",
                   "vertex_extractor/measure.py", "vertex_extractor/profile.py",

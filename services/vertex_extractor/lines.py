@@ -14,6 +14,7 @@ import math
 import numpy as np
 
 from services.core.jit import njit
+from services.core.order import median_in_place
 
 FIT_OK, TOO_FEW_POINTS, PARALLEL = 0, 1, 2
 MIN_SCALE_PX = 0.03  # least robust residual scale (px) for Huber's threshold
@@ -107,7 +108,9 @@ def huber_line(points: np.ndarray, c: float = 1.345, iterations: int = 10,
         for i in range(n):
             r[i] = nx * points[i, 0] + ny * points[i, 1] - d
         if it == 0 and scaled:  # Huber's threshold in units of the first fit's robust
-            scale = max(1.4826 * np.median(np.abs(r)), MIN_SCALE_PX)  # scale (MAD), floored
+            for i in range(n):  # scale (MAD), floored (the weights are w's scratch till then)
+                w[i] = abs(r[i])
+            scale = max(1.4826 * median_in_place(w, n), MIN_SCALE_PX)
         for i in range(n):
             a = abs(r[i])
             w[i] = 1.0 if a <= c * scale else c * scale / a
@@ -276,8 +279,8 @@ def robust_line(points: np.ndarray) -> tuple[float, float, float, float, int, fl
     for i in range(n):
         r[i] = abs(nx * points[i, 0] + ny * points[i, 1] - d)
     top = r.max()
-    if top <= FAST_PX:
-        sigma = max(1.4826 * np.median(r), MIN_SIGMA_PX)
+    if top <= FAST_PX:  # (r is scratch from here on)
+        sigma = max(1.4826 * median_in_place(r, n), MIN_SIGMA_PX)
         if top <= max(FAST_SIGMAS * sigma, 0.25):  # no gross outliers: the Huber fit stands
             return _line_stats(points, nx, ny, d, sigma)
     best = _trimmed_cost(points, nx, ny, d, r)

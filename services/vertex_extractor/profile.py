@@ -21,6 +21,7 @@ import math
 import numpy as np
 
 from services.core.jit import njit
+from services.core.order import median_in_place
 from services.vertex_extractor.colour import chroma_direction, is_marker, score
 
 #: profile samples across an edge, px from the fitted line (outward positive); the first and
@@ -74,7 +75,7 @@ def _median_at(img, bx, by, nx, ny, off, lo, inv, keep, lut, w, buf):  # type: i
     """The median over the kept points of the profile at ``off`` px, levels normalised."""
     for i in range(keep):
         buf[i] = (_bilinear(img, bx[i] + off * nx, by[i] + off * ny, lut, w) - lo[i]) * inv[i]
-    return np.median(buf[:keep])
+    return median_in_place(buf, keep)
 
 
 @njit(inline="always")
@@ -90,7 +91,8 @@ def _direction(img, v, lut):  # type: ignore[no-untyped-def]
         y = cy + s * (v[i % 4, 1] - cy)
         px = img[int(y + 0.5), int(x + 0.5)]
         col[0, i], col[1, i], col[2, i] = lut[px[0]], lut[px[1]], lut[px[2]]
-    return chroma_direction(np.median(col[0]), np.median(col[1]), np.median(col[2]))
+    return chroma_direction(median_in_place(col[0], 9), median_in_place(col[1], 9),
+                            median_in_place(col[2], 9))
 
 
 @njit()
@@ -132,7 +134,8 @@ def _offsets(img, v, lut, w, a0, a1, max_points):  # type: ignore[no-untyped-def
             lo[i] = _bilinear(img, bx[i] + OFFSETS[-1] * nx, by[i] + OFFSETS[-1] * ny, lut, w)
             span[i] = _bilinear(img, bx[i] + OFFSETS[0] * nx, by[i] + OFFSETS[0] * ny, lut,
                                 w) - lo[i]
-        typical = np.median(span[:count])
+        buf[:count] = span[:count]
+        typical = median_in_place(buf, count)
         if typical <= 0.0:
             continue
         keep = 0
