@@ -295,8 +295,10 @@ def robust_line(points: np.ndarray) -> tuple[float, float, float, float, int, fl
     for it in range(8):
         for i in range(n):
             r[i] = nx * points[i, 0] + ny * points[i, 1] - d
-        if it < 2:
-            sigma = max(1.4826 * np.median(np.abs(r)), MIN_SIGMA_PX)
+        if it < 2:  # (w is scratch until the weights below)
+            for i in range(n):
+                w[i] = abs(r[i])
+            sigma = max(1.4826 * median_in_place(w, n), MIN_SIGMA_PX)
         c = TUKEY_C * sigma
         for i in range(n):
             a = r[i] / c
@@ -319,7 +321,10 @@ def _line_stats(points: np.ndarray, nx: float, ny: float, d: float, sigma: float
     for i in range(n):
         r[i] = nx * points[i, 0] + ny * points[i, 1] - d
     if sigma < 0.0:
-        sigma = max(1.4826 * np.median(np.abs(r)), MIN_SIGMA_PX)
+        scratch = np.empty(n)
+        for i in range(n):
+            scratch[i] = abs(r[i])
+        sigma = max(1.4826 * median_in_place(scratch, n), MIN_SIGMA_PX)
     band = max(INLIER_SIGMAS * sigma, 0.25)
     count = 0
     cx = cy = sq = 0.0

@@ -124,10 +124,13 @@ def _found_errors(results: list[tuple[np.ndarray | None, np.ndarray]]
     (vertices found or None, true vertices) pairs."""
     errs = [np.linalg.norm(got - truth, axis=1) for got, truth in results if got is not None]
     wrong = sum(bool(e.max() > 2.0) for e in errs)
-    e = np.concatenate(errs) if errs else np.array([np.nan])
     total = max(len(results), 1)
-    return (f"{100 * len(errs) / total:.0f} %", f"{np.median(e):.2f}",
-            f"{np.percentile(e, 95):.2f}", f"{100 * wrong / total:.1f} % ({wrong})")
+    found = f"{100 * len(errs) / total:.0f} %"
+    if not errs:
+        return found, "-", "-", "0.0 % (0)"
+    e = np.concatenate(errs)
+    return (found, f"{np.median(e):.2f}", f"{np.percentile(e, 95):.2f}",
+            f"{100 * wrong / total:.1f} % ({wrong})")
 
 
 def hard_conditions(n: int, n_empty: int,
