@@ -1,10 +1,14 @@
-"""The compiled-kernel plumbing: the shared cache, `shepherd compile`, the event loop."""
+"""The compiled-kernel plumbing: the shared cache, `shepherd compile`, the event loop, the
+kernels' in-place median."""
 
 import asyncio
 import shutil
 from pathlib import Path
 
+import numpy as np
+
 from services.core import jit
+from services.core.order import IN_PLACE_MAX, median_in_place
 from services.tools.cli import use_fast_event_loop
 from tests.conftest import run_cli
 
@@ -58,9 +62,6 @@ def test_the_cli_runs_on_uvloop():
 def test_the_median_in_place_is_numpys_median():
     """``order.median_in_place`` (the profile's and line fits' medians): the same number as
     ``np.median`` for short arrays sorted in place and for long ones handed to numpy."""
-    import numpy as np
-
-    from services.core.order import IN_PLACE_MAX, median_in_place
     rng = np.random.default_rng(4)
     for n in range(1, IN_PLACE_MAX + 12):
         for values in (rng.normal(size=n), np.round(rng.normal(size=n)), np.zeros(n)):

@@ -613,7 +613,8 @@ def test_a_highlight_clips_the_ink_along_the_edges_beside_it_only():
     """``clipped_edge_share`` (the bench's split of the highlight's views): a highlight on
     the top vertex clips the ink along both edges there, not along the bottom ones; without
     a highlight nothing clips."""
-    assert not clipped_edge_share(_view(_style()).image, _view(_style()).vertices_px).any()
+    plain = _view(_style())
+    assert not clipped_edge_share(plain.image, plain.vertices_px).any()
     r = _view(_style(specular_gain=6.0, specular_radius=0.4, specular_at=(0.0, -0.9)))
     share = clipped_edge_share(r.image, r.vertices_px)  # left-top, top-right, right-bottom, ...
     assert share[0] > 0.3 and share[1] > 0.3, share
