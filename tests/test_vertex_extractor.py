@@ -167,6 +167,24 @@ def _bad_frames():
     yield "too small", small, "small"
 
 
+@pytest.mark.parametrize("side", ["top", "bottom", "left", "right"])
+@pytest.mark.parametrize("margin_px", [2.5, 5.0, 8.0])
+def test_a_marker_a_few_px_from_the_border_is_found(side, margin_px):
+    """A vertex a few px from the image's edge leaves its neighbours' windows no room
+    outside; those edge points are left out (the whole marker used to be refused as
+    "touching the border"), the vertex comes from the rest of its two edges."""
+    axis, k, target = {"top": (1, 1, margin_px), "bottom": (1, 3, 479.0 - margin_px),
+                       "left": (0, 0, margin_px), "right": (0, 2, 639.0 - margin_px)}[side]
+    centre = np.array([320.0, 240.0])
+    for _ in range(4):  # (the marker turns to face the camera: not a plain shift)
+        r = render_marker(0.3, u=centre[0], v=centre[1])
+        centre[axis] += target - r.vertices_px[k, axis]
+    assert abs(r.vertices_px[k, axis] - target) < 0.5
+    det = RhombusExtractor().extract(r.image)
+    assert det.found, det.reason
+    assert np.abs(det.vertices_px - r.vertices_px).max() < 0.3
+
+
 @pytest.mark.parametrize("name,image,reason", list(_bad_frames()),
                          ids=[b[0] for b in _bad_frames()])
 def test_bad_frames_give_found_false_with_a_reason(name, image, reason):

@@ -760,7 +760,8 @@ _fits = {
 }
 _verdicts = {
     lines.NOT_FINITE: "vertices not finite",
-    lines.OUTSIDE: "a vertex falls outside the image (marker cut by the border)",
+    lines.OUTSIDE: "the fitted edges meet outside the image (the marker cut by the border, or "
+                   "an edge's points taken from something else: a highlight's halo, an arm)",
     lines.NOT_CONVEX: "the four lines do not make a convex quadrilateral",
     lines.BAD_ANGLES: "implausible corner angles ({amin:.0f} to {amax:.0f} deg)",
     lines.NOT_STRAIGHT: "edges are not straight (residual {residual:.2f} px): partly hidden?",

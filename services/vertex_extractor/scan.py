@@ -145,7 +145,8 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     D points (n, 2), the walked blob's box x0, x1, y0, y1 inclusive), points in pixels
     (x, y) on columns Δx = ``dx`` apart, over the widest
     column and its neighbours whose run is at least ``min_len`` px long (Table 1's stop).
-    Status: OK, BORDER (the marker reaches the image border or the edge windows would),
+    Status: OK, BORDER (the marker reaches the image border, or the edge windows on one side
+    would in every column; a column's window that would is left out: NaN),
     LOW_CONTRAST (less than MIN_CONTRAST or CONTRAST_SNR x the inside's noise between inside
     and outside, linear x 255). ``shaded_spread``: a marker whose columns' centres spread by
     more than this share of the brightest (``_levels``) is shaded, and each edge point then
@@ -206,20 +207,27 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     inside = np.zeros(3)
     inside_rows = np.empty(n, np.int64)  # each column's plain marker row (-1: none)
     counted = 0
+    # an edge point whose window or outside level would reach past the image's top or
+    # bottom (next to a vertex a few px from the border) is not measured: its line and the
+    # vertex come from the rest of the edge
+    clear = np.empty((2, n), np.bool_)
     for i in range(n):
         x = a + i * dx
-        if top[x] < gap or bottom[x] + gap > H - 1:
-            return BORDER, area, n, 0.0, empty, empty, box
+        clear[0, i] = top[x] >= gap
+        clear[1, i] = bottom[x] + gap <= H - 1
         y = _inside_row(img, x, top[x], bottom[x], lut, m)
         inside_rows[i] = y
         if y >= 0:  # not an occluder or a highlight across the run
             counted += 1
             for c in range(3):
                 inside[c] += lut[img[y, x, c]]
+    if not (clear[0].any() and clear[1].any()):
+        return BORDER, area, n, 0.0, empty, empty, box
     if counted == 0:
         return LOW_CONTRAST, area, n, 0.0, empty, empty, box
     w = chroma_direction(inside[0], inside[1], inside[2])  # the marker's own chroma
-    s_in, s_out, noise, spread = _levels(img, a, n, dx, top, bottom, gap, lut, w, inside_rows)
+    s_in, s_out, noise, spread = _levels(img, a, n, dx, top, bottom, gap, lut, w, inside_rows,
+                                         clear)
     contrast = s_in - s_out
     if contrast < max(MIN_CONTRAST, CONTRAST_SNR * noise):
         return LOW_CONTRAST, area, n, contrast, empty, empty, box
@@ -283,7 +291,7 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
         i0, i1 = max(i - INSIDE_SPAN, 0), min(i + INSIDE_SPAN + 1, n)
         for side in range(2):
             count = colour[side, i1, 3] - colour[side, i0, 3]
-            if count < LOCAL_ROWS:
+            if count < LOCAL_ROWS or not clear[side, i]:
                 if side == 0:
                     u[i, 1] = np.nan
                 else:
@@ -411,7 +419,7 @@ def _inside_row(img, x, top, bottom, lut, m):  # type: ignore[no-untyped-def]
 
 
 @njit(inline="always")
-def _levels(img, a, n, dx, top, bottom, gap, lut, w, inside_rows):  # type: ignore[no-untyped-def]
+def _levels(img, a, n, dx, top, bottom, gap, lut, w, inside_rows, clear):  # type: ignore[no-untyped-def]
     """(inside, outside) score levels of the whole marker: the median at the columns' centres
     (marker pixels only: ``inside_rows``, each column's ``_inside_row``) and the median just
     beyond the edge windows; the inside's pixel
@@ -421,14 +429,19 @@ def _levels(img, a, n, dx, top, bottom, gap, lut, w, inside_rows):  # type: igno
     inside = np.empty(n)
     k = 0
     outside = np.empty(2 * n)
+    j = 0
     for i in range(n):
         x = a + i * dx
         y = inside_rows[i]
         if y >= 0:
             inside[k] = score(img, y, x, lut, w)
             k += 1
-        outside[2 * i] = score(img, top[x] - gap, x, lut, w)
-        outside[2 * i + 1] = score(img, bottom[x] + gap, x, lut, w)
+        if clear[0, i]:
+            outside[j] = score(img, top[x] - gap, x, lut, w)
+            j += 1
+        if clear[1, i]:
+            outside[j] = score(img, bottom[x] + gap, x, lut, w)
+            j += 1
     level = np.sort(inside[:k])  # (k >= 1: the scan counted the same centres)
     noise = 0.0
     spread = 0.0
@@ -438,7 +451,7 @@ def _levels(img, a, n, dx, top, bottom, gap, lut, w, inside_rows):  # type: igno
         if top_level > 0:
             spread = (top_level - level[k // 10]) / top_level
     median = 0.5 * (level[(k - 1) // 2] + level[k // 2])  # (sorted once, for both)
-    return median, np.median(outside), noise, spread
+    return median, np.median(outside[:j]), noise, spread
 
 
 LOCAL_ROWS = 3  # rows beyond the window that give the local background level
