@@ -747,7 +747,8 @@ def _view_refusal(v: np.ndarray, prm: np.ndarray, width: int, height: int) -> st
 
 _refusals = {
     measure.NO_SEED: "no marker-coloured pixels at the seed",
-    measure.BORDER: "marker touches the image border",
+    measure.BORDER: "the marker-coloured region reaches the image border (the marker cut by "
+                    "it, or against a surround of its own colour)",
     measure.FEW_POINTS: "too few measurable edge points (shadowed, hidden or washed out)",
 }
 _fits = {
