@@ -43,11 +43,14 @@ def test_a_video_file_gives_frames_stamped_from_the_file(tmp_path: Path):
 
 def test_the_service_publishes_file_stamps_and_scaled_intrinsics(tmp_path: Path, router,
                                                                  make_bus):
-    video = _video(tmp_path / "v.avi", n=40, size=(128, 96))
+    # 60 frames paced at 10 fps: the service lives 6 s, then ends with its file (and with it
+    # its liveliness token and the intrinsics queryable); at 50 fps its 0.8 s could pass on a
+    # loaded machine before the watcher looked
+    video = _video(tmp_path / "v.avi", n=60, size=(128, 96))
     (tmp_path / "cam.toml").write_text(CameraModel.paper().to_toml())  # calibrated at 640x480
     dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
                             "services": {"frame_source": {
-                                "source": str(video), "fps": 50, "loop": False,
+                                "source": str(video), "fps": 10, "loop": False,
                                 "width": 320, "height": 240, "intrinsics": "cam.toml"}}},
                            tmp_path / "d.toml")
     bus = make_bus("watcher")
