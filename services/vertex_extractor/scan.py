@@ -209,12 +209,14 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     counted = 0
     # an edge point whose window or outside level would reach past the image's top or
     # bottom (next to a vertex a few px from the border) is not measured: its line and the
-    # vertex come from the rest of the edge
+    # vertex come from the rest of the edge. (Inward, a window widened by a steep edge
+    # reaches at most 3 x window rows; on a run shorter than that, past its other end.)
     clear = np.empty((2, n), np.bool_)
+    reach = 3 * window
     for i in range(n):
         x = a + i * dx
-        clear[0, i] = top[x] >= gap
-        clear[1, i] = bottom[x] + gap <= H - 1
+        clear[0, i] = top[x] >= gap and top[x] + reach <= H - 1
+        clear[1, i] = bottom[x] + gap <= H - 1 and bottom[x] - reach >= 0
         y = _inside_row(img, x, top[x], bottom[x], lut, m)
         inside_rows[i] = y
         if y >= 0:  # not an occluder or a highlight across the run
