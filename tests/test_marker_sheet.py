@@ -55,3 +55,20 @@ def test_a_marker_as_wide_as_tall_is_printed_with_a_warning(tmp_path: Path):
     assert "taller than wide" in out.stderr
     plain = cli_here("marker", "sheet", "--out", str(tmp_path / "d.pdf"))
     assert plain.returncode == 0 and "warning" not in plain.stderr
+
+
+def test_a_narrow_marker_is_warned_of_and_the_usable_shapes_are_not():
+    """A marker narrower than 0.70 has corners sharp enough that cast shadows put more than
+    1 % of its views over 2 px off: warned of, with the range to use; shapes in that range
+    are not warned of, those over 0.85 are (pink cards)."""
+    from services.vertex_extractor.extractor import (
+        MAX_DISTINCT_RATIO,
+        MIN_ROBUST_RATIO,
+        shape_warning,
+    )
+    narrow = shape_warning(0.040 / 0.066)
+    assert "corners sharp" in narrow and "0.606 x the vertical" in narrow
+    assert "0.697 x" in shape_warning(0.046 / 0.066)  # (1.2 % wrong under the hard shadow)
+    assert f"{MIN_ROBUST_RATIO:.2f}-{MAX_DISTINCT_RATIO:.2f}" in narrow
+    assert all(shape_warning(r) == "" for r in (0.70, 0.76, 0.85))
+    assert "pink cards" in shape_warning(0.86)

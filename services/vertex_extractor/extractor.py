@@ -635,18 +635,32 @@ def sharpest_corner_deg(diagonal_ratio: float, off_normal_deg: float) -> float:
 #: frames with pink things, docs/measured.md "The marker's shape": none of 1 200 taken for the
 #: default 0.76 marker, 1 of 200 at 0.86, 5 at 0.93, a sixth at 1.0 and a third at 1.17)
 MAX_DISTINCT_RATIO = 0.85
+#: a marker narrower than this has sharper top and bottom corners, whose vertices an edge's
+#: shadow-bent line moves further (1 / sin of the half-angle): under a hard cast shadow more
+#: than 1 % of views came out over 2 px off (seeds 31-35, 1 000 views, cold: 1.9 % at 0.61,
+#: 1.5 % at 0.65, 1.2 % at 0.70, 0.9 % at the default 0.76, 0.3 % at 0.85; docs/measured.md
+#: "On five more seeds, and with a narrower marker")
+MIN_ROBUST_RATIO = 0.70
 
 
 def shape_warning(diagonal_ratio: float) -> str:
     """Why a marker whose horizontal diagonal is ``diagonal_ratio`` times its vertical one
-    will be confused with everyday magenta things, or "" when it is distinct enough."""
-    if diagonal_ratio <= MAX_DISTINCT_RATIO:
-        return ""
-    return (f"the marker's diagonals (horizontal {diagonal_ratio:.2f} x the vertical) make a "
-            f"shape that pink cards and sticky notes take in some views: they will be taken "
-            f"for the marker when it is out of view (and make frames with it ambiguous). Use "
-            f"a marker taller than wide, its horizontal diagonal at most "
-            f"{MAX_DISTINCT_RATIO:.2f} x the vertical (the default: 5.0 x 6.6 cm)")
+    will be confused with everyday magenta things, or measured wrong more often under cast
+    shadows, or "" when its shape is neither."""
+    if diagonal_ratio > MAX_DISTINCT_RATIO:
+        return (f"the marker's diagonals (horizontal {diagonal_ratio:.2f} x the vertical) make "
+                f"a shape that pink cards and sticky notes take in some views: they will be "
+                f"taken for the marker when it is out of view (and make frames with it "
+                f"ambiguous). Use a marker taller than wide, its horizontal diagonal at most "
+                f"{MAX_DISTINCT_RATIO:.2f} x the vertical (the default: 5.0 x 6.6 cm)")
+    if diagonal_ratio < MIN_ROBUST_RATIO:
+        return (f"the marker's diagonals (horizontal {diagonal_ratio:.3f} x the vertical) make "
+                f"its top and bottom corners sharp: a cast shadow across it moves those "
+                f"vertices further, and more than 1 % of views under a hard cast shadow are "
+                f"measured over 2 px off (at 0.61, twice the default marker's rate). Use a "
+                f"horizontal diagonal of {MIN_ROBUST_RATIO:.2f}-{MAX_DISTINCT_RATIO:.2f} x the "
+                f"vertical (the default: 5.0 x 6.6 cm)")
+    return ""
 
 
 #: the covariance of the mean of the column and the row scan's vertices: the scans' mean
