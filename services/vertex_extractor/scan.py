@@ -210,9 +210,9 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     # an edge point whose window or outside level would reach past the image's top or
     # bottom (next to a vertex a few px from the border) is not measured: its line and the
     # vertex come from the rest of the edge. (Inward, a window widened by a steep edge
-    # reaches at most 3 x window rows; on a run shorter than that, past its other end.)
+    # reaches as far; on a run shorter than that, past its other end.)
     clear = np.empty((2, n), np.bool_)
-    reach = 3 * window
+    reach = (1 + MAX_WIDEN) * window
     for i in range(n):
         x = a + i * dx
         clear[0, i] = top[x] >= gap and top[x] + reach <= H - 1
@@ -236,8 +236,8 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     u = np.empty((n, 2))
     d = np.empty((n, 2))
     wl = np.empty(3)  # the score direction at one edge point
-    # one edge point's window scores: window + outer + 2 ext rows, ext <= 2 window
-    rows = np.empty(window + outer + 4 * window + 2)
+    # one edge point's window scores: window + outer + 2 ext rows, ext <= MAX_WIDEN window
+    rows = np.empty(window + outer + 2 * MAX_WIDEN * window + 2)
     exts = np.zeros((2, n), np.int64)
     # a shaded marker with sharp edges: its inside level nearer the edge (``SHADED_DEPTH``;
     # a narrow window's own rows may be as near: then as elsewhere)
@@ -261,7 +261,7 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
             slope = abs(run[xr] - run[xl]) / max(xr - xl, 1)
             end = top[x] if side == 0 else bottom[x]
             border = end - gap if side == 0 else H - 1 - gap - end
-            ext = max(min(int(STEEP * slope + 0.5), 2 * window, room, border), 0)
+            ext = max(min(int(STEEP * slope + 0.5), MAX_WIDEN * window, room, border), 0)
             exts[side, i] = ext
             out = -1 if side == 0 else 1
             depth = (shaded_depth if nearer else window + 1) + ext
@@ -461,6 +461,7 @@ LEVEL_STEP = 0.2  # a change of the inside level along an edge that drops its po
 FLAT_TOLERANCE = 0.12  # how much brighter than the inside level the window's inner rows may be
 INSIDE_SPAN = 6  # columns each side whose inside colour gives an edge point's inside level
 STEEP = 1.5     # extra window rows per unit of edge slope (rows per column)
+MAX_WIDEN = 2   # ... and at most this many windows more
 GLOBAL, LOCAL, CROSSING, ORTHOGONAL = 0, 1, 2, 3  # edge methods (ExtractorParams.edge)
 
 
