@@ -16,7 +16,7 @@ from services.sim.hazards import Hazards, clipped_edge_share
 from services.sim.render import RenderStyle, render_view
 from services.sim.scenes import HARD_CONDITIONS, NO_MARKER, hard_views, marker_pose
 from services.sim.webcam import WebcamParams
-from services.vertex_extractor import measure
+from services.vertex_extractor import measure, scan
 from services.vertex_extractor.extractor import (
     ExtractorParams,
     RhombusExtractor,
@@ -326,6 +326,37 @@ def test_a_narrow_second_try_takes_nothing_from_the_rows_alone():
                                                 ex.params.colour.vector, narrow)
     assert status == measure.FOUND and stats[measure.ROWS_INSTEAD] == 1.0
     assert np.linalg.norm(v - truth, axis=1).max() > 2.0
+
+
+def test_the_row_scan_is_not_cut_off_at_the_column_scans_box():
+    """A webcam frame (tests/data/hard_frames) under a clipped highlight: the column walk
+    stops at the clipped core, 48 px above where the row walk, going round the core, ends.
+    The rows were scanned on a region 44 px around the column scan's box, whose side they
+    reached and which stopped them as the image's border would: the marker was refused
+    ("quadrilateral area ... does not match the blob's"). Scanned on the whole image, the
+    rows find it, within its reported uncertainty."""
+    img, truth = _kept_frame("highlight_240")
+    ex = RhombusExtractor()
+    lut, model = ex.params.colour.lut, ex.params.colour.vector
+    x, y, radius = ex._coarse_search(img)[0]
+    sx, sy = scan.find_seed(img, x, y, radius, lut, model)
+    prm = ex._prm
+    status, *_, box = measure.column_scan(img, sx, sy, lut, model, prm)
+    margin = 44  # the region's: 3 (window + outer) + 2 LOCAL_ROWS + 2 px
+    x0, y0 = max(box[0] - margin, 0), max(box[2] - margin, 0)
+    region = img[y0:box[3] + margin + 1, x0:box[1] + margin + 1].transpose(1, 0, 2)
+    in_region = scan.scan(
+        region, sy - y0, sx - x0, int(prm[measure.MIN_LEN]), int(prm[measure.DX]),
+        int(prm[measure.WINDOW]), lut, model, int(prm[measure.EDGE]),
+        int(prm[measure.OUTER]), prm[measure.SHADED_SPREAD], int(prm[measure.SHADED_DEPTH]),
+        prm[measure.SHADED_GRADIENT] > 0)
+    rows = measure._row_scan(img, sx, sy, lut, model, prm)
+    assert status == scan.OK and in_region[0] == scan.BORDER and rows[0] == scan.OK
+    det = ex.extract(img)
+    assert det.found, det.reason
+    error = np.linalg.norm(det.vertices_px - truth, axis=1)
+    sigma = np.sqrt(np.linalg.eigvalsh(det.vertices_cov_px2).max(axis=1))
+    assert error.max() < 1.0 and np.all(error < 3 * sigma), (error, sigma)
 
 
 def test_steep_and_small_markers_are_found():

@@ -302,30 +302,27 @@ def _accept(v, residual, cov, sigma, area, width, height, prm,  # type: ignore[n
 
 
 @njit()
-def _rows(img, sx, sy, box, lut, m, prm, stats, v, cov):  # type: ignore[no-untyped-def]
-    """The marker (whose column scan's box is x0, x1, y0, y1) scanned along its rows: the
-    column scan on a transposed view of the region around it."""
-    status, area, n, contrast, u, d, roi, x0, y0 = _row_scan(img, sx, sy, box, lut, m, prm)
-    return _judge(roi, status, area, n, contrast, u, d, img.shape[1], img.shape[0], prm, x0,
-                  y0, stats, v, cov)
+def _rows(img, sx, sy, lut, m, prm, stats, v, cov):  # type: ignore[no-untyped-def]
+    """The marker at the marker pixel (sx, sy) scanned along its rows (``_row_scan``) and
+    judged."""
+    status, area, n, contrast, u, d, rows = _row_scan(img, sx, sy, lut, m, prm)
+    return _judge(rows, status, area, n, contrast, u, d, img.shape[1], img.shape[0], prm, 0,
+                  0, stats, v, cov)
 
 
 @njit()
-def _row_scan(img, sx, sy, box, lut, m, prm):  # type: ignore[no-untyped-def]
-    """``scan.scan`` along the rows: on the transposed region around the column scan's box
-    (x0, x1, y0, y1); returns its result, the region and the region's corner (x0, y0)."""
-    H, W = img.shape[0], img.shape[1]
-    window = int(prm[WINDOW])
-    outer = int(prm[OUTER])
-    margin = 3 * (window + max(outer, window)) + 2 * scan.LOCAL_ROWS + 2
-    x0, y0 = max(box[0] - margin, 0), max(box[2] - margin, 0)
-    x1, y1 = min(box[1] + margin, W - 1), min(box[3] + margin, H - 1)
-    roi = img[y0:y1 + 1, x0:x1 + 1].transpose(1, 0, 2)
+def _row_scan(img, sx, sy, lut, m, prm):  # type: ignore[no-untyped-def]
+    """``scan.scan`` along the rows from the marker pixel (sx, sy): the column scan on the
+    transposed image (a view, no copy); returns its result and that view. Not on a region
+    around the column scan's box: under a highlight the row walk can go round the clipped
+    core further than the columns went, and the region's side stopped it as the image's
+    border would (``tests/test_hard_conditions.py``)."""
+    rows = img[0:img.shape[0], 0:img.shape[1]].transpose(1, 0, 2)
     status, area, n, contrast, u, d, _ = scan.scan(
-        roi, sy - y0, sx - x0, int(prm[MIN_LEN]), int(prm[DX]), window, lut, m,
-        int(prm[EDGE]), outer, prm[SHADED_SPREAD], int(prm[SHADED_DEPTH]),
+        rows, sy, sx, int(prm[MIN_LEN]), int(prm[DX]), int(prm[WINDOW]), lut, m,
+        int(prm[EDGE]), int(prm[OUTER]), prm[SHADED_SPREAD], int(prm[SHADED_DEPTH]),
         prm[SHADED_GRADIENT] > 0)
-    return status, area, n, contrast, u, d, roi, x0, y0
+    return status, area, n, contrast, u, d, rows
 
 
 @njit()
@@ -348,31 +345,31 @@ def _under_highlight(img, u, d, sx, sy, box, area, lut, m, prm,  # type: ignore[
     marker there). Returns (status, vertices (4, 2) px, covariance (4, 2, 2) px²)."""
     v = np.zeros((4, 2))
     cov = np.zeros((4, 2, 2))
-    status, _, _, _, u_rows, d_rows, roi, x0, y0 = _row_scan(img, sx, sy, box, lut, m, prm)
+    status, _, _, _, u_rows, d_rows, rows = _row_scan(img, sx, sy, lut, m, prm)
     if status != scan.OK:
         return FIT + lines.TOO_FEW_POINTS, v, cov
     cu, cd, _, _ = lines.finite_points(u, d)
     keep_u, keep_d = _outside_notches(img, cu, cd)
     cu, cd = cu[keep_u], cd[keep_d]
     ru, rd, _, _ = lines.finite_points(u_rows, d_rows)
-    keep_u, keep_d = _outside_notches(roi, ru, rd)
+    keep_u, keep_d = _outside_notches(rows, ru, rd)
     ru, rd = ru[keep_u], rd[keep_d]
     top, bottom, left, right = _split_at(cu), _split_at(cd), _split_at(ru), _split_at(rd)
     if not (np.isfinite(top) and np.isfinite(bottom) and np.isfinite(left) and
             np.isfinite(right)):
         return FIT + lines.TOO_FEW_POINTS, v, cov
     v0 = np.empty((4, 2))  # left, top, right, bottom: the box's sides where a chain turns
-    v0[0, 0], v0[0, 1] = box[0], left + y0
+    v0[0, 0], v0[0, 1] = box[0], left
     v0[1, 0], v0[1, 1] = top, box[2]
-    v0[2, 0], v0[2, 1] = box[1], right + y0
+    v0[2, 0], v0[2, 1] = box[1], right
     v0[3, 0], v0[3, 1] = bottom, box[3]
-    # the rows' chains in the image: (x, y) = (y' + x0, x' + y0)
+    # the rows' chains in the image: (x, y) = (y', x')
     left_chain = np.empty((ru.shape[0], 2))
     right_chain = np.empty((rd.shape[0], 2))
     for i in range(ru.shape[0]):
-        left_chain[i, 0], left_chain[i, 1] = ru[i, 1] + x0, ru[i, 0] + y0
+        left_chain[i, 0], left_chain[i, 1] = ru[i, 1], ru[i, 0]
     for i in range(rd.shape[0]):
-        right_chain[i, 0], right_chain[i, 1] = rd[i, 1] + x0, rd[i, 0] + y0
+        right_chain[i, 0], right_chain[i, 1] = rd[i, 1], rd[i, 0]
     clipped = 0
     for y in range(box[2], box[3] + 1):
         for x in range(box[0], box[1] + 1):
@@ -453,7 +450,7 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
         stats[COLUMNS_UNSURE] = 1.0
         v_rows = np.zeros((4, 2))
         cov_rows = np.zeros((4, 2, 2))
-        rows, u_rows, d_rows = _rows(img, sx, sy, box, lut, m, prm, np.zeros(N_STATS),
+        rows, u_rows, d_rows = _rows(img, sx, sy, lut, m, prm, np.zeros(N_STATS),
                                      v_rows, cov_rows)
         if rows == FOUND or rows == UNCERTAIN:
             vf, cf = v.copy(), cov.copy()
@@ -480,7 +477,7 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
         tall = box[3] - box[2] > TALL * (box[1] - box[0])
         if status != scan.BORDER and (few or (tall and fit_failed(found))):
             stats_rows = np.zeros(N_STATS)
-            rows, u_rows, d_rows = _rows(img, sx, sy, box, lut, m, prm, stats_rows, v, cov)
+            rows, u_rows, d_rows = _rows(img, sx, sy, lut, m, prm, stats_rows, v, cov)
             if rows == FOUND:  # checked against and fitted with the columns' edge points
                 rows = _instead(img, u, d, u_rows, d_rows, v, cov, prm, stats_rows)
             if rows == FOUND:
@@ -501,7 +498,7 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
     if prm[CROSS_CHECK] > 0:
         v_rows = np.zeros((4, 2))
         cov_rows = np.zeros((4, 2, 2))
-        rows, _, _ = _rows(img, sx, sy, box, lut, m, prm, np.zeros(N_STATS), v_rows, cov_rows)
+        rows, _, _ = _rows(img, sx, sy, lut, m, prm, np.zeros(N_STATS), v_rows, cov_rows)
         if rows == FOUND:
             vc, cc = v.copy(), cov.copy()
             stats[GAP] = cross_check(vc, cc, v_rows, cov_rows, prm[MEAN_COV_SCALE],

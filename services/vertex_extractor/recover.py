@@ -121,15 +121,15 @@ def edge_points(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray,
     if cu.shape[0] and cd.shape[0]:
         keep_u, keep_d = measure._outside_notches(img, cu, cd)
         cu, cd = cu[keep_u], cd[keep_d]
-    status, _, _, _, ur, dr, roi, x0, y0 = measure._row_scan(img, sx, sy, box, lut, m, prm)
+    status, _, _, _, ur, dr, rows = measure._row_scan(img, sx, sy, lut, m, prm)
     ru, rd = np.empty((0, 2)), np.empty((0, 2))
     if status == scan.OK:
         ru, rd, _, _ = lines.finite_points(ur, dr)
         if ru.shape[0] and rd.shape[0]:
-            keep_u, keep_d = measure._outside_notches(roi, ru, rd)
+            keep_u, keep_d = measure._outside_notches(rows, ru, rd)
             ru, rd = ru[keep_u], rd[keep_d]
-        ru = np.stack([ru[:, 1] + x0, ru[:, 0] + y0], axis=1)  # (x, y) = (y' + x0, x' + y0)
-        rd = np.stack([rd[:, 1] + x0, rd[:, 0] + y0], axis=1)
+        ru = np.stack([ru[:, 1], ru[:, 0]], axis=1)  # (x, y) = (y', x')
+        rd = np.stack([rd[:, 1], rd[:, 0]], axis=1)
     chains = [cu[np.argsort(cu[:, 0], kind="stable")], cd[np.argsort(cd[:, 0], kind="stable")],
               ru[np.argsort(ru[:, 1], kind="stable")], rd[np.argsort(rd[:, 1], kind="stable")]]
     return chains, box, (sx, sy)
