@@ -1,10 +1,10 @@
 """One seed's measurement in one compiled call: the column scan, its line fits and tests, the
-row scan of the region around the marker and the two scans' cross-check.
+row scan of the marker (along the image's rows) and the two scans' cross-check.
 
 ``RhombusExtractor`` did this in Python with about ten kernel calls per frame and numpy glue
 between them (a copy of the transposed region, reordering, the mean of the two scans); their
 per-call costs were most of a tracked frame's time. Here the row scan reads a transposed
-*view* of the region (no copy) and every test runs in the kernel; Python only turns a
+*view* of the image (no copy) and every test runs in the kernel; Python only turns a
 refusal's status and figures into its message (``extractor._reasons``).
 
 Statuses: ``FOUND``, or why not. ``FIT + s`` carries ``lines.fit_rhombus_robust``'s status
