@@ -359,6 +359,30 @@ def test_the_row_scan_is_not_cut_off_at_the_column_scans_box():
     assert error.max() < 1.0 and np.all(error < 3 * sigma), (error, sigma)
 
 
+def test_under_a_highlight_the_joint_fit_starts_from_both_walks():
+    """A webcam frame (tests/data/hard_frames) whose highlight splits the marker's blob in
+    two. From the lower blob's seed the column walk covers the ink below the clipped core
+    (from x = 57 px), the row walk goes round the core to the left vertex (from x = 47 px;
+    the vertex is at 40.6). Both scans' lines fail, and both scans' points are fitted at
+    once from a first quadrilateral on the box's sides and with the box's clipped pixels
+    counted as the blob's: with the column walk's box that was refused ("the fitted edges
+    meet outside the image"); with the box of both walks the marker is found, within its
+    reported uncertainty."""
+    img, truth = _kept_frame("highlight_7_157")
+    ex = RhombusExtractor()
+    lut, model = ex.params.colour.lut, ex.params.colour.vector
+    x, y, radius = ex._coarse_search(img)[1]  # (the lower blob)
+    sx, sy = scan.find_seed(img, x, y, radius, lut, model)
+    *_, box = measure.column_scan(img, sx, sy, lut, model, ex._prm_small)
+    row_box = measure._row_scan(img, sx, sy, lut, model, ex._prm_small)[7]
+    assert row_box[0] < box[0] - 5  # (x0, x1, y0, y1)
+    det = ex.extract(img)
+    assert det.found, det.reason
+    error = np.linalg.norm(det.vertices_px - truth, axis=1)
+    sigma = np.sqrt(np.linalg.eigvalsh(det.vertices_cov_px2).max(axis=1))
+    assert error.max() < 1.0 and np.all(error < 3 * sigma), (error, sigma)
+
+
 def test_steep_and_small_markers_are_found():
     for condition in ("steep: 55-70 deg", "small: 25-40 px across"):
         errors, wrong, total, _ = _run(condition, 20)

@@ -75,7 +75,8 @@ def test_the_fit_to_edge_points_finds_the_pose_from_a_rough_start() -> None:
 #: webcam-model frames kept as rendered, cropped (tests/data/hard_frames/README.md), each
 #: refused by the line fits: a highlight or an arm hides part of the marker
 KEPT = Path(__file__).parent / "data" / "hard_frames"
-HIDDEN = ("highlight_10", "highlight_76", "highlight_120", "highlight_124",
+#: (highlight_120 is no longer: both scans' points at once, from both walks' box, find it)
+HIDDEN = ("highlight_10", "highlight_76", "highlight_124",
           "arm_over_an_edge_16", "arm_over_an_edge_100")
 
 

@@ -305,7 +305,7 @@ def _accept(v, residual, cov, sigma, area, width, height, prm,  # type: ignore[n
 def _rows(img, sx, sy, lut, m, prm, stats, v, cov):  # type: ignore[no-untyped-def]
     """The marker at the marker pixel (sx, sy) scanned along its rows (``_row_scan``) and
     judged."""
-    status, area, n, contrast, u, d, rows = _row_scan(img, sx, sy, lut, m, prm)
+    status, area, n, contrast, u, d, rows, _ = _row_scan(img, sx, sy, lut, m, prm)
     return _judge(rows, status, area, n, contrast, u, d, img.shape[1], img.shape[0], prm, 0,
                   0, stats, v, cov)
 
@@ -316,13 +316,15 @@ def _row_scan(img, sx, sy, lut, m, prm):  # type: ignore[no-untyped-def]
     transposed image (a view, no copy); returns its result and that view. Not on a region
     around the column scan's box: under a highlight the row walk can go round the clipped
     core further than the columns went, and the region's side stopped it as the image's
-    border would (``tests/test_hard_conditions.py``)."""
+    border would (``tests/test_hard_conditions.py``). Returns its result, that view and the
+    row walk's box in the image (x0, x1, y0, y1)."""
     rows = img[0:img.shape[0], 0:img.shape[1]].transpose(1, 0, 2)
-    status, area, n, contrast, u, d, _ = scan.scan(
+    status, area, n, contrast, u, d, walked = scan.scan(
         rows, sy, sx, int(prm[MIN_LEN]), int(prm[DX]), int(prm[WINDOW]), lut, m,
         int(prm[EDGE]), int(prm[OUTER]), prm[SHADED_SPREAD], int(prm[SHADED_DEPTH]),
         prm[SHADED_GRADIENT] > 0)
-    return status, area, n, contrast, u, d, rows
+    box = np.array([walked[2], walked[3], walked[0], walked[1]])
+    return status, area, n, contrast, u, d, rows, box
 
 
 @njit()
@@ -342,12 +344,19 @@ def _under_highlight(img, u, d, sx, sy, box, area, lut, m, prm,  # type: ignore[
     or much of an edge washed out: too few points on an edge of either scan alone), each
     edge fitted to both scans' measured points (``_joint``) from where each chain turns
     (``_split_at``); the clipped pixels in the box count as the blob's (the highlight hides
-    marker there). Returns (status, vertices (4, 2) px, covariance (4, 2, 2) px²)."""
+    marker there). The box and the blob's area are both walks' (``box``, ``area``: the
+    column walk's): where the highlight splits the blob, the row walk can go round the core
+    where the column walk stopped. Returns (status, vertices (4, 2) px, covariance
+    (4, 2, 2) px²)."""
     v = np.zeros((4, 2))
     cov = np.zeros((4, 2, 2))
-    status, _, _, _, u_rows, d_rows, rows = _row_scan(img, sx, sy, lut, m, prm)
+    status, row_area, _, _, u_rows, d_rows, rows, row_box = _row_scan(img, sx, sy, lut, m,
+                                                                      prm)
     if status != scan.OK:
         return FIT + lines.TOO_FEW_POINTS, v, cov
+    box = np.array([min(box[0], row_box[0]), max(box[1], row_box[1]),
+                    min(box[2], row_box[2]), max(box[3], row_box[3])])
+    area = max(area, row_area)
     cu, cd, _, _ = lines.finite_points(u, d)
     keep_u, keep_d = _outside_notches(img, cu, cd)
     cu, cd = cu[keep_u], cd[keep_d]

@@ -121,7 +121,7 @@ def edge_points(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray,
     if cu.shape[0] and cd.shape[0]:
         keep_u, keep_d = measure._outside_notches(img, cu, cd)
         cu, cd = cu[keep_u], cd[keep_d]
-    status, _, _, _, ur, dr, rows = measure._row_scan(img, sx, sy, lut, m, prm)
+    status, _, _, _, ur, dr, rows, _ = measure._row_scan(img, sx, sy, lut, m, prm)
     ru, rd = np.empty((0, 2)), np.empty((0, 2))
     if status == scan.OK:
         ru, rd, _, _ = lines.finite_points(ur, dr)
