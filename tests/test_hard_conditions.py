@@ -18,6 +18,7 @@ from services.sim.scenes import HARD_CONDITIONS, NO_MARKER, hard_views, marker_p
 from services.sim.webcam import WebcamParams
 from services.vertex_extractor import measure, scan
 from services.vertex_extractor.extractor import (
+    Detection,
     ExtractorParams,
     RhombusExtractor,
     read_only,
@@ -35,6 +36,15 @@ def _kept_frame(name: str) -> tuple[np.ndarray, np.ndarray]:
     assert image is not None, f"{HARD_FRAMES / name}.png is missing or unreadable"
     truth = json.loads((HARD_FRAMES / f"{name}.json").read_text())["vertices_px"]
     return read_only(image), np.array(truth)  # (as the kernels are compiled for)
+
+
+def _assert_within(det: Detection, truth: np.ndarray, limit_px: float) -> None:
+    """``det`` found, every vertex within ``limit_px`` of ``truth`` and 3 reported sigmas."""
+    assert det.found and det.vertices_px is not None and det.vertices_cov_px2 is not None, \
+        det.reason
+    error = np.linalg.norm(det.vertices_px - truth, axis=1)
+    sigma = np.sqrt(np.linalg.eigvalsh(det.vertices_cov_px2).max(axis=1))
+    assert error.max() < limit_px and np.all(error < 3 * sigma), (error, sigma)
 
 
 pytestmark = pytest.mark.skipif(not textures.have_photos(),
@@ -303,10 +313,7 @@ def test_an_arms_edge_across_a_vertex_is_refused_by_where_the_diagonals_cross():
     img, truth = _kept_frame("arm_over_a_vertex")
     off = RhombusExtractor(ExtractorParams(nearest_view_m=0.01)).extract(img)  # (no bound)
     assert off.found and np.linalg.norm(off.vertices_px - truth, axis=1).max() > 10
-    det = RhombusExtractor().extract(img)
-    error = np.linalg.norm(det.vertices_px - truth, axis=1)
-    sigma = np.sqrt(np.linalg.eigvalsh(det.vertices_cov_px2).max(axis=1))
-    assert error.max() < 0.5 and np.all(error < 3 * sigma), (error, sigma)
+    _assert_within(RhombusExtractor().extract(img), truth, 0.5)
 
 
 def test_a_narrow_second_try_takes_nothing_from_the_rows_alone():
@@ -352,11 +359,7 @@ def test_the_row_scan_is_not_cut_off_at_the_column_scans_box():
         prm[measure.SHADED_GRADIENT] > 0)
     rows = measure._row_scan(img, sx, sy, lut, model, prm)
     assert status == scan.OK and in_region[0] == scan.BORDER and rows[0] == scan.OK
-    det = ex.extract(img)
-    assert det.found, det.reason
-    error = np.linalg.norm(det.vertices_px - truth, axis=1)
-    sigma = np.sqrt(np.linalg.eigvalsh(det.vertices_cov_px2).max(axis=1))
-    assert error.max() < 1.0 and np.all(error < 3 * sigma), (error, sigma)
+    _assert_within(ex.extract(img), truth, 1.0)
 
 
 def test_under_a_highlight_the_joint_fit_starts_from_both_walks():
@@ -376,11 +379,7 @@ def test_under_a_highlight_the_joint_fit_starts_from_both_walks():
     *_, box = measure.column_scan(img, sx, sy, lut, model, ex._prm_small)
     row_box = measure._row_scan(img, sx, sy, lut, model, ex._prm_small)[7]
     assert row_box[0] < box[0] - 5  # (x0, x1, y0, y1)
-    det = ex.extract(img)
-    assert det.found, det.reason
-    error = np.linalg.norm(det.vertices_px - truth, axis=1)
-    sigma = np.sqrt(np.linalg.eigvalsh(det.vertices_cov_px2).max(axis=1))
-    assert error.max() < 1.0 and np.all(error < 3 * sigma), (error, sigma)
+    _assert_within(ex.extract(img), truth, 1.0)
 
 
 def test_steep_and_small_markers_are_found():
