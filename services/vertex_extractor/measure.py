@@ -204,11 +204,11 @@ def _outside_notches(img, u, d):  # type: ignore[no-untyped-def]
 
 
 @njit()
-def _judge(img, status, area, n, contrast, u, d, width, height, prm, ox, oy,  # type: ignore[no-untyped-def]
+def _judge(img, status, area, n, contrast, u, d, width, height, prm, transposed,  # type: ignore[no-untyped-def]
            stats, v_out, cov_out):
     """The scan's result tested as the marker: its status, and the finite edge points (in
-    the image's frame). ``img``: what the scan ran on; ``ox`` >= 0: it ran on the transposed
-    region whose corner is at (ox, oy) of the image."""
+    the image's frame). ``img``: what the scan ran on; ``transposed``: the transposed image
+    (the row scan)."""
     stats[AREA], stats[COLUMNS], stats[CONTRAST] = area, n, contrast
     if status == scan.BORDER:
         return BORDER, u, d
@@ -220,8 +220,8 @@ def _judge(img, status, area, n, contrast, u, d, width, height, prm, ox, oy,  # 
     if status == scan.LOW_CONTRAST:
         return LOW_CONTRAST, u, d
     u, d, cx, cy = lines.finite_points(u, d)  # without points where no edge was measured
-    found, u_out, d_out = _tests(u, d, cx, cy, area, width, height, prm, ox, oy, stats, v_out,
-                                 cov_out)
+    found, u_out, d_out = _tests(u, d, cx, cy, area, width, height, prm, transposed, stats,
+                                 v_out, cov_out)
     if found == FOUND:
         return found, u_out, d_out
     # where the points as they are fail, again without the points of a notch in the outline
@@ -232,7 +232,7 @@ def _judge(img, status, area, n, contrast, u, d, width, height, prm, ox, oy,  # 
     u2, d2, cx2, cy2 = lines.finite_points(u[keep_u], d[keep_d])
     stats_again = stats.copy()
     v_again, cov_again = v_out.copy(), cov_out.copy()
-    again, u_again, d_again = _tests(u2, d2, cx2, cy2, area, width, height, prm, ox, oy,
+    again, u_again, d_again = _tests(u2, d2, cx2, cy2, area, width, height, prm, transposed,
                                      stats_again, v_again, cov_again)
     if again != FOUND:
         return found, u_out, d_out
@@ -243,7 +243,7 @@ def _judge(img, status, area, n, contrast, u, d, width, height, prm, ox, oy,  # 
 
 
 @njit()
-def _tests(u, d, cx, cy, area, width, height, prm, ox, oy,  # type: ignore[no-untyped-def]
+def _tests(u, d, cx, cy, area, width, height, prm, transposed,  # type: ignore[no-untyped-def]
            stats, v_out, cov_out):
     """The finite edge points u, d (centre cx, cy) fitted and tested as the marker; the
     vertices and covariance go to v_out, cov_out only when found."""
@@ -255,20 +255,20 @@ def _tests(u, d, cx, cy, area, width, height, prm, ox, oy,  # type: ignore[no-un
     stats[RESIDUAL], stats[SIGMA] = residual, sigma
     if fit != lines.FIT_OK:
         return FIT + fit, u, d
-    if ox >= 0:  # back to the image: (x', y') = (y, x), L T R B = T' L' B' R'
+    if transposed:  # back to the image: (x', y') = (y, x), L T R B = T' L' B' R'
         t = v.copy()
         tc = cov.copy()
         for i in range(4):
             j = (1, 0, 3, 2)[i]
-            v[i, 0], v[i, 1] = t[j, 1] + ox, t[j, 0] + oy
+            v[i, 0], v[i, 1] = t[j, 1], t[j, 0]
             cov[i, 0, 0], cov[i, 0, 1] = tc[j, 1, 1], tc[j, 1, 0]
             cov[i, 1, 0], cov[i, 1, 1] = tc[j, 0, 1], tc[j, 0, 0]
         ut = np.empty_like(u)
         dt = np.empty_like(d)
         for i in range(u.shape[0]):
-            ut[i, 0], ut[i, 1] = u[i, 1] + ox, u[i, 0] + oy
+            ut[i, 0], ut[i, 1] = u[i, 1], u[i, 0]
         for i in range(d.shape[0]):
-            dt[i, 0], dt[i, 1] = d[i, 1] + ox, d[i, 0] + oy
+            dt[i, 0], dt[i, 1] = d[i, 1], d[i, 0]
         u, d = ut, dt
     return _accept(v, residual, cov, sigma, area, width, height, prm, stats, v_out,
                    cov_out), u, d
@@ -306,18 +306,18 @@ def _rows(img, sx, sy, lut, m, prm, stats, v, cov):  # type: ignore[no-untyped-d
     """The marker at the marker pixel (sx, sy) scanned along its rows (``_row_scan``) and
     judged."""
     status, area, n, contrast, u, d, rows, _ = _row_scan(img, sx, sy, lut, m, prm)
-    return _judge(rows, status, area, n, contrast, u, d, img.shape[1], img.shape[0], prm, 0,
-                  0, stats, v, cov)
+    return _judge(rows, status, area, n, contrast, u, d, img.shape[1], img.shape[0], prm,
+                  True, stats, v, cov)
 
 
 @njit()
 def _row_scan(img, sx, sy, lut, m, prm):  # type: ignore[no-untyped-def]
     """``scan.scan`` along the rows from the marker pixel (sx, sy): the column scan on the
-    transposed image (a view, no copy); returns its result and that view. Not on a region
-    around the column scan's box: under a highlight the row walk can go round the clipped
-    core further than the columns went, and the region's side stopped it as the image's
-    border would (``tests/test_hard_conditions.py``). Returns its result, that view and the
-    row walk's box in the image (x0, x1, y0, y1)."""
+    transposed image (a view, no copy). Not on a region around the column scan's box: under
+    a highlight the row walk can go round the clipped core further than the columns went,
+    and the region's side stopped it as the image's border would
+    (``tests/test_hard_conditions.py``). Returns its result, that view and the row walk's
+    box in the image (x0, x1, y0, y1)."""
     rows = img[0:img.shape[0], 0:img.shape[1]].transpose(1, 0, 2)
     status, area, n, contrast, u, d, walked = scan.scan(
         rows, sy, sx, int(prm[MIN_LEN]), int(prm[DX]), int(prm[WINDOW]), lut, m,
@@ -453,7 +453,7 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
     if sx < 0:
         return NO_SEED, stats, v, cov, np.empty((0, 2)), np.empty((0, 2))
     status, area, n, contrast, u, d, box = column_scan(img, sx, sy, lut, m, prm)
-    found, u, d = _judge(img, status, area, n, contrast, u, d, W, H, prm, -1, -1, stats, v,
+    found, u, d = _judge(img, status, area, n, contrast, u, d, W, H, prm, False, stats, v,
                          cov)
     if found == UNCERTAIN and prm[FUSE] > 0:  # the rows may know the vertex better
         stats[COLUMNS_UNSURE] = 1.0

@@ -128,8 +128,7 @@ def edge_points(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray,
         if ru.shape[0] and rd.shape[0]:
             keep_u, keep_d = measure._outside_notches(rows, ru, rd)
             ru, rd = ru[keep_u], rd[keep_d]
-        ru = np.stack([ru[:, 1], ru[:, 0]], axis=1)  # (x, y) = (y', x')
-        rd = np.stack([rd[:, 1], rd[:, 0]], axis=1)
+        ru, rd = ru[:, ::-1], rd[:, ::-1]  # (x, y) = (y', x')
     chains = [cu[np.argsort(cu[:, 0], kind="stable")], cd[np.argsort(cd[:, 0], kind="stable")],
               ru[np.argsort(ru[:, 1], kind="stable")], rd[np.argsort(rd[:, 1], kind="stable")]]
     return chains, box, (sx, sy)
