@@ -77,9 +77,12 @@ def _extract_all(views: list, params: ExtractorParams | None = None
 def _gains(views: list, off: ExtractorParams, more: int, what: str,
            on: ExtractorParams | None = None) -> None:
     """The views judged with a feature switched off (``off``) and on (``on``, by default the
-    defaults): on, at least ``more`` more are found, and none more wrong."""
+    defaults): on, at least ``more`` more are found, and none more wrong. Both without the
+    last resort, the whole-marker shadow fit (``shadow_model``), which finds most of what a
+    scan's feature adds under a shadow and would hide it."""
     counts = {}
-    for name, params in (("off", off), ("on", on)):
+    for name, params in (("off", off), ("on", on or ExtractorParams())):
+        params = params.model_copy(update=dict(shadow_model=False))
         errors, wrong, _, _ = _extract_all(views, params)
         counts[name] = (len(errors), wrong)
     print(f"\n{what}: found, wrong without it {counts['off']}, with it {counts['on']}")

@@ -91,6 +91,11 @@ Where we depart from the paper, keeping its spirit:
   highlight or an arm over an edge, a small or shaded marker) is fitted as the deployment's
   rhombus to the edge points it shows, where three of its edges fix the pose
   (``recover.py``), and passes the same tests; never on a tracked try.
+- Last, on a cold try: a marker every route above refused is fitted whole to its pixels as
+  the rhombus under a cast shadow's straight boundary (``shadow.py``: blurred edges times a
+  half-plane's darkening, 15 parameters), and taken only where the fit and the surround
+  both show that shadow, under the same shape tests and uncertainty limit
+  (``shadow_model``; 5-300 ms, paid only on such views).
 - The covariance reported (``covariance.py``) is that one scaled with the marker's size (the
   errors that matter do not average out along an edge) plus what the profile says about a
   misplaced edge: honest (NEES about 2) on small and large markers, under blur and shadows.
@@ -124,6 +129,7 @@ from services.vertex_extractor import (
     profile,
     recover,
     scan,
+    shadow,
     shape,
 )
 from services.vertex_extractor.colour import ColourModel, grid_mask
@@ -267,6 +273,10 @@ class ExtractorParams(BaseModel):
         "or shape test failed) is fitted as the deployment's rhombus to the edge points it "
         "shows, under the same uncertainty limit and the shape test's view bounds "
         "(recover.py)"))
+    shadow_model: bool = Field(default=True, description=(
+        "last, on a cold search: a marker every other route refused is fitted whole as the "
+        "rhombus under a cast shadow's straight boundary, taken only where the fit and its "
+        "surround show that shadow (shadow.py; 5-300 ms a view, paid only on such views)"))
 
 
 #: the quadrilateral's edges, from vertex k (left, top, right, bottom) to the next
@@ -453,7 +463,7 @@ class RhombusExtractor:
         base, small = self._loose if test is not None else (self._prm, self._prm_small)
         prm = base
         measured = measure.measure(image, *seed, lut, model, prm)
-        first = measured[0]
+        first, first_v = measured[0], measured[2]
         if first in measure.FEW or first == measure.ROWS_OFF:  # a small marker?
             prm = small.copy()
             if measured[1][measure.AREA] < p.small_window_area_px:  # short chords: narrow
@@ -494,7 +504,35 @@ class RhombusExtractor:
             recovered = self._recover(image, seed, base, test)
             if recovered is not None:
                 return recovered
+        if p.shadow_model and not tracked:
+            shadowed = self._shadowed(image, first_v, base, test)
+            if isinstance(shadowed, Detection):
+                return shadowed
+            if shadowed not in shadow.UNTRIED:
+                return _miss(f"{det.reason}; fitted whole under a cast shadow, refused: "
+                             f"{shadowed}")
         return det
+
+    def _shadowed(self, image: np.ndarray, v0: np.ndarray, prm: np.ndarray,
+                  test: ShapeTest | None) -> Detection | str:
+        """The marker the scans measured as v0 (4, 2) px and refused, fitted whole under a
+        cast shadow (``shadow.py``), if the fit is taken and passes the tests any detection
+        passes (the line fits' shape tests, the shape test with intrinsics, the uncertainty
+        limit); else why not (the scans' refusal stands)."""
+        fit = shadow.fit(image, v0, self.params.colour.lut)
+        if isinstance(fit, str):
+            return fit
+        H, W = image.shape[:2]
+        v = fit.vertices_px
+        if reason := _view_refusal(v, prm, W, H) or (
+                test.refusal(v, fit.cov_px2) if test is not None else ""):
+            return reason
+        if (sigma := recover.largest_sigma_px(fit.cov_px2)) > self.params.max_vertex_sigma_px:
+            return f"vertex uncertainty too large ({sigma:.2f} px, 1 sigma)"
+        self._seed = _seed_around(v)
+        area = recover.quad_area(v)
+        return Detection(True, v, min(area / (W * H), 1.0), fit.residual_px, "", False, None,
+                         fit.cov_px2)
 
     def _recover(self, image: np.ndarray, seed: tuple[int, int, int], prm: np.ndarray,
                  test: ShapeTest) -> Detection | None:
