@@ -12,7 +12,7 @@ from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
 from services.sim.scenes import random_views
 from services.vertex_extractor.colour import ColourModel, grid_mask
-from services.vertex_extractor.extractor import ExtractorParams, RhombusExtractor
+from services.vertex_extractor.extractor import Detection, ExtractorParams, RhombusExtractor
 from services.vertex_extractor.lines import best_split, robust_split
 from tests.conftest import wait_alive_async, wait_matched
 from tests.helpers.fake_frames import publish_frame, render_marker
@@ -191,6 +191,43 @@ def test_bad_frames_give_found_false_with_a_reason(name, image, reason):
     det = RhombusExtractor().extract(image)
     assert not det.found and det.reason
     assert any(r in det.reason for r in ((reason,) if isinstance(reason, str) else reason))
+
+
+def test_a_slow_extraction_holds_up_no_other_service(router, make_bus, monkeypatch):
+    """The services of one process share its event loop, the IR transmitter's heartbeat to
+    the firmware's 0.4 s watchdog among them; a marker fitted whole under a shadow takes up
+    to 0.3 s. The extraction runs on its own thread: while one takes 0.6 s, the loop still
+    runs every few ms, and the result is published."""
+    def slow(self, image):  # type: ignore[no-untyped-def]
+        time.sleep(0.6)
+        return Detection(False, reason="slow on purpose")
+    monkeypatch.setattr(RhombusExtractor, "extract", slow)
+    dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
+                            "services": {"vertex_extractor": {}}})
+    bus = make_bus("camera")
+
+    async def go():
+        out = bus.subscribe(VERTICES, MarkerVertices, latest=False, queue=8)
+        service = asyncio.create_task(run_deployment(dep, duration=60))
+        await wait_alive_async(bus.session, "vertex_extractor")
+        await wait_matched(bus, FRAME)
+        gaps = []
+
+        async def tick() -> None:
+            last = time.monotonic()
+            while True:
+                await asyncio.sleep(0.01)
+                now = time.monotonic()
+                gaps.append(now - last)
+                last = now
+        ticker = asyncio.create_task(tick())
+        publish_frame(bus, np.zeros((480, 640, 3), np.uint8), 7)
+        m = await out.recv(timeout=30)
+        ticker.cancel()
+        service.cancel()
+        assert m.seq == 7 and not m.found and m.reason == "slow on purpose"
+        assert len(gaps) > 20 and max(gaps) < 0.2, max(gaps)
+    asyncio.run(go())
 
 
 def test_service_publishes_vertices_and_survives_bad_frames(router, make_bus):

@@ -3,13 +3,16 @@
 With the camera's intrinsics (``intrinsics``, a file, or else ``camera/intrinsics``, asked
 once at the start and followed, as the pose estimator takes them) each detection's shape is
 tested against the deployment's rhombus seen by that camera (``shape.py``); without them, or
-on frames of another size, the weak-perspective test alone.
+on frames of another size, the weak-perspective test alone. Each frame is extracted on the
+service's own thread, so that a slow one (a marker fitted whole under a shadow: up to 0.3 s)
+holds up no other service sharing the process's event loop.
 """
 
 from __future__ import annotations
 
 import asyncio
 import logging
+from concurrent.futures import ThreadPoolExecutor
 
 import cv2
 from pydantic import Field, model_validator
@@ -121,6 +124,11 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
         follower.take(CameraModel.load(config.intrinsics).to_message())
     else:
         asking = asyncio.create_task(_ask_intrinsics(ctx, follower))
+    # extraction on its own thread: a marker fitted whole under a shadow (shadow.py) takes
+    # up to 0.3 s, which would hold up every service sharing this loop (the IR
+    # transmitter's heartbeat to the firmware's 0.4 s watchdog among them)
+    worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vertex-extractor")
+    loop = asyncio.get_running_loop()
     try:
         async for frame in frames:
             if config.intrinsics is None and (k := updates.get_nowait()) is not None:
@@ -133,13 +141,15 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                                               "image")
             else:
                 try:
-                    det = extractor.extract(image if image.ndim == 3 else
-                                            cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
+                    det = await loop.run_in_executor(
+                        worker, extractor.extract,
+                        image if image.ndim == 3 else cv2.cvtColor(image, cv2.COLOR_GRAY2BGR))
                 except Exception as err:
                     log.exception("extractor failed on frame %d", h.seq)
                     extractor.reset()
                     det = Detection(False, reason=f"internal error: {err}")
             bus.put(VERTICES, to_message(det, h.seq, h.stamp_ns, h.width, h.height))
     finally:
+        worker.shutdown(wait=False, cancel_futures=True)
         if asking is not None:
             asking.cancel()
