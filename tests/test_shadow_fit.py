@@ -26,13 +26,13 @@ def test_the_models_jacobian_is_its_derivative():
     matches central differences at every pixel of the box."""
     X, Y = _grid()
     for p in (TRUE, TRUE * np.r_[np.ones(8), -1.0, np.ones(5), -1.0]):
-        _, J = shadow.model(p, X, Y, True, jac=True)
+        _, J = shadow.model(p, X, Y, jac=True)
         assert J is not None
         for i in range(p.size):
             step = np.zeros_like(p)
             step[i] = 1e-6
-            numeric = (shadow.model(p + step, X, Y, True)[0]
-                       - shadow.model(p - step, X, Y, True)[0]) / 2e-6
+            numeric = (shadow.model(p + step, X, Y)[0]
+                       - shadow.model(p - step, X, Y)[0]) / 2e-6
             assert np.abs(J[:, i] - numeric).max() < 1e-5, i
 
 
@@ -43,12 +43,12 @@ def test_the_solver_reaches_scipys_soft_l1_optimum():
     within 0.1 px of the truth."""
     X, Y = _grid()
     rng = np.random.default_rng(7)
-    score = shadow.model(TRUE, X, Y, True)[0] + rng.normal(0, 0.03, X.size)
+    score = shadow.model(TRUE, X, Y)[0] + rng.normal(0, 0.03, X.size)
     score[rng.random(X.size) < 0.02] += 0.8  # specks the loss must shrug off
     start = TRUE + np.r_[rng.normal(0, 1.5, 8), 0.3, -0.1, 0.02, 0.1, 0.1, 3.0, 0.5]
 
     def residual(p: np.ndarray, jac: bool):  # type: ignore[no-untyped-def]
-        f, J = shadow.model(p, X, Y, True, jac)
+        f, J = shadow.model(p, X, Y, jac)
         return f - score, J
 
     ours = shadow.robust_lm(residual, start, 0.1, 100)

@@ -37,6 +37,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.special import ndtr
 
+from services.vertex_extractor.colour import chroma_direction
+
 MARGIN_PX = 6            # the fitted box: the quadrilateral's plus this (px)
 MAX_BOX_PX = 40_000      # a larger box is not fitted (its cost), px²
 MIN_INTERIOR_PX = 20     # the interior's pixels a shadow's split needs
@@ -70,12 +72,11 @@ UNTRIED = (NO_QUADRILATERAL, OUTSIDE_FRAME, NO_SHADOW_LINE)
 @dataclass(frozen=True)
 class ShadowFit:
     """A shadowed marker fitted whole: vertices (4, 2) px in the scans' order, their
-    covariance (4, 2, 2) px², the shadow's darkening k, and the worst edge band's RMS
-    residual as a distance (px: over the edge profile's steepest slope)."""
+    covariance (4, 2, 2) px², and the worst edge band's RMS residual as a distance (px:
+    over the edge profile's steepest slope)."""
 
     vertices_px: np.ndarray
     cov_px2: np.ndarray
-    k: float
     residual_px: float
 
 
@@ -97,10 +98,10 @@ def _phi(z: np.ndarray) -> np.ndarray:
     return np.exp(-0.5 * z * z) * (1.0 / math.sqrt(2.0 * math.pi))
 
 
-def model(p: np.ndarray, X: np.ndarray, Y: np.ndarray, shadow: bool, jac: bool = False
+def model(p: np.ndarray, X: np.ndarray, Y: np.ndarray, jac: bool = False
           ) -> tuple[np.ndarray, np.ndarray | None]:
-    """The score the parameters p predict at the pixels X, Y (px), and its Jacobian
-    (len(X), len(p)) if ``jac``."""
+    """The score the 15 parameters p predict at the pixels X, Y (px), and its Jacobian
+    (len(X), 15) if ``jac``."""
     v = p[:8].reshape(4, 2)
     sig = abs(p[8]) + 0.3
     A, b = p[9], p[10]
@@ -111,13 +112,10 @@ def model(p: np.ndarray, X: np.ndarray, Y: np.ndarray, shadow: bool, jac: bool =
         signs.append(sign)
     cdf = ndtr(d / sig)
     cover = cdf.prod(0)
-    if shadow:
-        k, ang, rho, soft = p[11], p[12], p[13], abs(p[14]) + 0.3
-        s = math.cos(ang) * X + math.sin(ang) * Y - rho
-        lit = ndtr(s / soft)
-        G = k + (1.0 - k) * lit
-    else:
-        G = np.ones_like(X)
+    k, ang, rho, soft = p[11], p[12], p[13], abs(p[14]) + 0.3
+    s = math.cos(ang) * X + math.sin(ang) * Y - rho
+    lit = ndtr(s / soft)
+    G = k + (1.0 - k) * lit
     f = b + A * cover * G
     if not jac:
         return f, None
@@ -146,12 +144,11 @@ def model(p: np.ndarray, X: np.ndarray, Y: np.ndarray, shadow: bool, jac: bool =
     J[:, 8] = AG * (dcov_dd * (-d / sig)).sum(0) * (1.0 if p[8] >= 0 else -1.0)
     J[:, 9] = cover * G
     J[:, 10] = 1.0
-    if shadow:
-        ds = A * cover * (1.0 - k) * _phi(s / soft) / soft
-        J[:, 11] = A * cover * (1.0 - lit)
-        J[:, 12] = ds * (-math.sin(ang) * X + math.cos(ang) * Y)
-        J[:, 13] = -ds
-        J[:, 14] = ds * (-s / soft) * (1.0 if p[14] >= 0 else -1.0)
+    ds = A * cover * (1.0 - k) * _phi(s / soft) / soft
+    J[:, 11] = A * cover * (1.0 - lit)
+    J[:, 12] = ds * (-math.sin(ang) * X + math.cos(ang) * Y)
+    J[:, 13] = -ds
+    J[:, 14] = ds * (-s / soft) * (1.0 if p[14] >= 0 else -1.0)
     return f, J
 
 
@@ -204,11 +201,7 @@ def _score(box: np.ndarray, lut: np.ndarray, centre: tuple[int, int]) -> np.ndar
     lin = lut[box]
     cx, cy = centre
     q = lin[max(cy - 2, 0):cy + 3, max(cx - 2, 0):cx + 3].reshape(-1, 3).mean(0)
-    w = q - q.mean()
-    norm = float(np.linalg.norm(w))
-    if not norm > 0:
-        return np.zeros(box.shape[:2])
-    return np.asarray(lin @ (w / norm))
+    return np.asarray(lin @ chroma_direction(q[0], q[1], q[2]))
 
 
 def _split(S: np.ndarray, X: np.ndarray, Y: np.ndarray, v: np.ndarray
@@ -259,12 +252,13 @@ def surround_ratio(image: np.ndarray, lut: np.ndarray, v: np.ndarray, ang: float
     pts = foot + a[:, None] * t
     lit, shaded = pts + delta * n, pts - delta * n
     H, W = image.shape[:2]
+    edges = _edges(v)
     ok = np.ones(a.size, bool)
     for q in (lit, shaded):
         qi = np.rint(q).astype(int)
         ok &= (qi[:, 0] >= 0) & (qi[:, 0] < W) & (qi[:, 1] >= 0) & (qi[:, 1] < H)
         inside = np.ones(a.size, bool)
-        for nn, off, _ in _edges(v):
+        for nn, off, _ in edges:
             inside &= q @ nn - off >= -2.0
         ok &= ~inside
     if not ok.any():
@@ -317,7 +311,7 @@ def fit(image: np.ndarray, v0: np.ndarray, lut: np.ndarray) -> ShadowFit | str:
     x, y, s = X.ravel(), Y.ravel(), S.ravel()
 
     def residual(p: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
-        f, J = model(p, x, y, True, jac)
+        f, J = model(p, x, y, jac)
         return f - s, J
 
     solved = robust_lm(residual, p0, f_scale, MAX_EVALUATIONS)
@@ -336,7 +330,6 @@ def fit(image: np.ndarray, v0: np.ndarray, lut: np.ndarray) -> ShadowFit | str:
             and 0.5 * k <= ratio <= 2.0 * k):
         return (f"the surround does not show the shadow (brightness ratio {ratio:.2f} across "
                 f"its line over {pairs} pixel pairs, for a darkening {k:.2f} on the marker)")
-    full = model(p, x, y, True)[0] - s
     worst = 0.0
     for i, (n, off, _) in enumerate(_edges(v)):
         a, c = v[i], v[(i + 1) % 4]
@@ -344,7 +337,7 @@ def fit(image: np.ndarray, v0: np.ndarray, lut: np.ndarray) -> ShadowFit | str:
         L = float(np.hypot(*t))
         along = ((x - a[0]) * t[0] + (y - a[1]) * t[1]) / max(L, 1e-9)
         band = (np.abs(n[0] * x + n[1] * y - off) < 2.5) & (along > 3) & (L - along > 3)
-        rms = float(np.sqrt(np.mean(full[band] ** 2))) / p[9] if band.any() else math.inf
+        rms = float(np.sqrt(np.mean(r[band] ** 2))) / p[9] if band.any() else math.inf
         if not rms <= MAX_BAND_RMS:
             return f"edge {i} does not fit the shadowed marker (band RMS {rms:.3f} of its level)"
         worst = max(worst, rms)
@@ -361,4 +354,4 @@ def fit(image: np.ndarray, v0: np.ndarray, lut: np.ndarray) -> ShadowFit | str:
     sigma2 = SIGMA_SCALE ** 2 * var + SIGMA_FLOOR_PX ** 2
     cov = sigma2[:, None, None] * np.eye(2)
     blur = abs(p[8]) + 0.3
-    return ShadowFit(v, cov, k, worst * blur * math.sqrt(2.0 * math.pi))
+    return ShadowFit(v, cov, worst * blur * math.sqrt(2.0 * math.pi))
