@@ -80,10 +80,12 @@ def test_what_only_looks_like_a_shadow_is_not_taken(name: str, why: str):
     """An arm over an edge and a motion-blurred marker, both refused by the scans, split
     into a darker and a lighter part like a shadowed marker: the fit is refused with its
     reason (the darkening it finds, the surround that shows no shadow), and the extractor's
-    refusal stands."""
+    refusal stands, ending with that reason."""
     img, _ = _kept_frame(name)
     ex = RhombusExtractor()
-    assert not ex.extract(img).found
+    det = ex.extract(img)
+    assert not det.found and "; fitted whole under a cast shadow, refused: " in det.reason
+    assert why in det.reason, det.reason
     seeds = ex._coarse_search(img)
     assert not isinstance(seeds, str)
     v0 = measure.measure(img, *seeds[0], ex.params.colour.lut, ex.params.colour.vector,
