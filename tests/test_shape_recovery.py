@@ -99,10 +99,11 @@ def test_a_marker_with_edges_hidden_is_found_as_the_known_rhombus(name: str) -> 
     """With intrinsics, a marker the line fits refuse (too few points on one side, the scans
     disagreeing, too uncertain) under a highlight or an arm is found as the deployment's
     rhombus fitted to the edge points it shows, each vertex within 1 px and its reported
-    uncertainty; without intrinsics, or with the fit off, it stays refused."""
+    uncertainty; without intrinsics, or with the fit off, it stays refused (the whole-marker
+    fit under a highlight off: it finds some of them without intrinsics, ``highlight.py``)."""
     image, truth, camera = _kept(name)
     for recovery, intrinsics in ((False, camera), (True, None)):
-        ex = RhombusExtractor(ExtractorParams(shape_recovery=recovery))
+        ex = RhombusExtractor(ExtractorParams(shape_recovery=recovery, highlight_model=False))
         ex.use_intrinsics(intrinsics)
         refused = ex.extract(image)
         assert not refused.found and refused.reason, (recovery, intrinsics)

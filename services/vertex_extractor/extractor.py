@@ -95,7 +95,10 @@ Where we depart from the paper, keeping its spirit:
   the rhombus under a cast shadow's straight boundary (``shadow.py``: blurred edges times a
   half-plane's darkening, 15 parameters), and taken only where the fit and the surround
   both show that shadow, under the same shape tests and uncertainty limit
-  (``shadow_model``; 5-300 ms, paid only on such views).
+  (``shadow_model``; 5-300 ms, paid only on such views). Where clipped pixels touch the
+  blob, the same fit without the shadow, the pixels near the clipped ones left out, from
+  the blob's hull: a glossy print's highlight that hides too much of an edge for the scans
+  (``highlight.py``, ``highlight_model``; about 70 ms).
 - The covariance reported (``covariance.py``) is that one scaled with the marker's size (the
   errors that matter do not average out along an edge) plus what the profile says about a
   misplaced edge: honest (NEES about 2) on small and large markers, under blur and shadows.
@@ -123,6 +126,7 @@ from services.core.camera import CameraModel
 from services.core.mounts import Geometry
 from services.vertex_extractor import (
     covariance,
+    highlight,
     lines,
     measure,
     paper,
@@ -277,6 +281,11 @@ class ExtractorParams(BaseModel):
         "last, on a cold search: a marker every other route refused is fitted whole as the "
         "rhombus under a cast shadow's straight boundary, taken only where the fit and its "
         "surround show that shadow (shadow.py; 5-300 ms a view, paid only on such views)"))
+    highlight_model: bool = Field(default=True, description=(
+        "last, on a cold search: a marker every other route refused, with clipped pixels "
+        "on its blob, is fitted whole with the pixels near the clipped ones left out, taken "
+        "only where every edge is seen over a fifth of its length (highlight.py; about 70 "
+        "ms a view, paid only on such views)"))
 
 
 #: the quadrilateral's edges, from vertex k (left, top, right, bottom) to the next
@@ -298,6 +307,19 @@ class Detection:
     tracked: bool = False
     edge_points: tuple[np.ndarray, np.ndarray] | None = None  # U and D points (for plots)
     vertices_cov_px2: np.ndarray | None = None  # (4, 2, 2) per-vertex covariance, px²
+
+
+@dataclass(frozen=True)
+class _Refusal:
+    """A cold try every scan refused: its refusal, and what the whole-marker fits start
+    from (the seed, the first measurement's quadrilateral, the parameters, the shape test
+    with intrinsics)."""
+
+    det: Detection
+    seed: tuple[int, int, int]
+    first_v: np.ndarray
+    prm: np.ndarray
+    test: ShapeTest | None
 
 
 def _miss(reason: str, tracked: bool = False) -> Detection:
@@ -398,14 +420,16 @@ class RhombusExtractor:
         passes as the marker looks bigger or smaller with its distance: docs/measured.md "The
         marker's shape")."""
         first: Detection | None = None
+        refusals: list[_Refusal] = []
         for i, seed_px in enumerate(seeds):
-            det = self._extract_from(image, seed_px, tracked=False)
+            det, refusal = self._scanned(image, seed_px, tracked=False)
             if not det.found:
                 first = first or det
+                refusals += [refusal] if refusal is not None else []
                 continue
             seed = self._seed
             for other_px in seeds[i + 1:]:
-                other = self._extract_from(image, other_px, tracked=False)
+                other = self._scanned(image, other_px, tracked=False)[0]
                 if not other.found or _same_marker(det, other):
                     continue  # (a highlight or an arm splits one marker's blob in two)
                 lo, hi = sorted((det.residual_px, other.residual_px))
@@ -417,6 +441,14 @@ class RhombusExtractor:
                     det, seed = other, self._seed
             self._seed = seed
             return det
+        # no blob passed as the marker: each fitted whole, largest first (after every blob's
+        # scans: a highlight splits a marker's blob, and the scans may find it from another)
+        for refusal in refusals:
+            fitted = self._fitted_whole_marker(image, refusal)
+            if fitted.found:
+                return fitted
+            if refusal.det is first:
+                first = fitted  # (the first blob's refusal, with why a fit was not taken)
         self._seed = None
         assert first is not None
         return first
@@ -449,17 +481,47 @@ class RhombusExtractor:
 
     def _extract_from(self, image: np.ndarray, seed: tuple[int, int, int],
                       tracked: bool) -> Detection:
+        """The marker at or near ``seed`` (x, y, search radius px): scanned
+        (``_scanned``), then, on a cold try that every scan refused, fitted whole."""
+        det, refusal = self._scanned(image, seed, tracked)
+        return self._fitted_whole_marker(image, refusal) if refusal is not None else det
+
+    def _fitted_whole_marker(self, image: np.ndarray, refusal: _Refusal) -> Detection:
+        """A marker every scan refused on a cold try, fitted whole under a clipped highlight
+        (``highlight.py``) or a cast shadow (``shadow.py``); else the scans' refusal, with
+        why a fit that was tried was not taken."""
+        p, det = self.params, refusal.det
+        if p.highlight_model:
+            lit = self._highlighted(image, refusal.seed, refusal.prm, refusal.test)
+            if isinstance(lit, Detection):
+                return lit
+            if lit not in highlight.UNTRIED:
+                return _miss(f"{det.reason}; fitted whole under a clipped highlight, refused: "
+                             f"{lit}")
+        if p.shadow_model:
+            shadowed = self._shadowed(image, refusal.first_v, refusal.prm, refusal.test)
+            if isinstance(shadowed, Detection):
+                return shadowed
+            if shadowed not in shadow.UNTRIED:
+                return _miss(f"{det.reason}; fitted whole under a cast shadow, refused: "
+                             f"{shadowed}")
+        return det
+
+    def _scanned(self, image: np.ndarray, seed: tuple[int, int, int], tracked: bool
+                 ) -> tuple[Detection, _Refusal | None]:
         """The marker at or near ``seed`` (x, y, search radius px), measured in one compiled
         call (``measure.measure``) and judged; a marker too small for the parameters is tried
         again with the small markers' ones, one whose edges a shadow's boundary may have moved
         with a narrower window, one whose lines failed under a clipped highlight from both
-        scans' points at once (the first refusal stands when that fails too)."""
+        scans' points at once (the first refusal stands when that fails too); with
+        intrinsics, one short of edge points fitted as the deployment's rhombus. A cold
+        refusal comes with what the whole-marker fits start from."""
         p = self.params
         lut, model = p.colour.lut, p.colour.vector
         test = self._shape if self._shape is not None and self._shape.size == (
             image.shape[1], image.shape[0]) else None  # intrinsics for this frame size
         if p.method == "paper":
-            return self._paper(image, seed, tracked)
+            return self._paper(image, seed, tracked), None
         base, small = self._loose if test is not None else (self._prm, self._prm_small)
         prm = base
         measured = measure.measure(image, *seed, lut, model, prm)
@@ -472,7 +534,7 @@ class RhombusExtractor:
             measured = measure.measure(image, *seed, lut, model, prm)
         det, biased = self._judge(image, measured, prm, test, tracked)
         if det.found:
-            return det
+            return det, None
         refused = int(measured[0])  # FOUND: refused by the profile or the shape test
         if biased and prm[measure.WINDOW] > p.narrow_window:
             narrow = self._narrow(prm)
@@ -486,32 +548,34 @@ class RhombusExtractor:
                     measured[1][measure.CHECKED] > 0 or not needs_rows):
                 again, _ = self._judge(image, measured, narrow, test, tracked)
                 if again.found:
-                    return again
+                    return again, None
         if p.both_scans_under_highlight and measure.fit_failed(first):
             # last: under a clipped highlight, both scans' points at once (a marker with too
             # few points had it on its second try)
-            highlight = base.copy()
-            highlight[measure.UNDER_HIGHLIGHT] = 1.0
-            measured = measure.measure(image, *seed, lut, model, highlight)
+            both = base.copy()
+            both[measure.UNDER_HIGHLIGHT] = 1.0
+            measured = measure.measure(image, *seed, lut, model, both)
             if measured[0] == measure.FOUND:
-                again, _ = self._judge(image, measured, highlight, test, tracked)
+                again, _ = self._judge(image, measured, both, test, tracked)
                 if again.found:
-                    return again
+                    return again, None
         if test is not None and p.shape_recovery and not tracked and \
                 refused in measure.WANT_OF_POINTS:
             # (the scans with the first try's parameters: a small marker's second try
             # narrows the window for short chords, which the fit does not need)
             recovered = self._recover(image, seed, base, test)
             if recovered is not None:
-                return recovered
-        if p.shadow_model and not tracked:
-            shadowed = self._shadowed(image, first_v, base, test)
-            if isinstance(shadowed, Detection):
-                return shadowed
-            if shadowed not in shadow.UNTRIED:
-                return _miss(f"{det.reason}; fitted whole under a cast shadow, refused: "
-                             f"{shadowed}")
-        return det
+                return recovered, None
+        return det, (None if tracked else _Refusal(det, seed, first_v, base, test))
+
+    def _highlighted(self, image: np.ndarray, seed: tuple[int, int, int], prm: np.ndarray,
+                     test: ShapeTest | None) -> Detection | str:
+        """The marker at ``seed`` the scans refused, fitted whole under a clipped highlight
+        (``highlight.py``), if the fit is taken and passes the tests any detection passes;
+        else why not (the scans' refusal stands)."""
+        c = self.params.colour
+        fit = highlight.fit(image, seed[:2], c.lut, c.vector, c.green_bound)
+        return fit if isinstance(fit, str) else self._as_detection(image, fit, prm, test)
 
     def _shadowed(self, image: np.ndarray, v0: np.ndarray, prm: np.ndarray,
                   test: ShapeTest | None) -> Detection | str:
@@ -520,8 +584,13 @@ class RhombusExtractor:
         passes (the line fits' shape tests, the shape test with intrinsics, the uncertainty
         limit); else why not (the scans' refusal stands)."""
         fit = shadow.fit(image, v0, self.params.colour.lut)
-        if isinstance(fit, str):
-            return fit
+        return fit if isinstance(fit, str) else self._as_detection(image, fit, prm, test)
+
+    def _as_detection(self, image: np.ndarray, fit: shadow.ShadowFit | highlight.HighlightFit,
+                      prm: np.ndarray, test: ShapeTest | None) -> Detection | str:
+        """A marker fitted whole as a detection, if it passes the tests any detection passes
+        (the line fits' shape tests, the shape test with intrinsics, the uncertainty limit);
+        else why not."""
         H, W = image.shape[:2]
         v = fit.vertices_px
         if reason := _view_refusal(v, prm, W, H) or (

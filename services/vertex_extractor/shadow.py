@@ -330,6 +330,23 @@ def fit(image: np.ndarray, v0: np.ndarray, lut: np.ndarray) -> ShadowFit | str:
             and 0.5 * k <= ratio <= 2.0 * k):
         return (f"the surround does not show the shadow (brightness ratio {ratio:.2f} across "
                 f"its line over {pairs} pixel pairs, for a darkening {k:.2f} on the marker)")
+    worst, edge = band_rms(v, x, y, r, float(p[9]))
+    if edge >= 0:
+        return f"edge {edge} does not fit the shadowed marker (band RMS {worst:.3f} of its level)"
+    cov = vertex_covariance(r, J, f_scale, SIGMA_SCALE, SIGMA_FLOOR_PX)
+    if isinstance(cov, str):
+        return cov
+    if not np.isfinite(v).all():
+        return "the fit's covariance is not finite"
+    blur = abs(p[8]) + 0.3
+    return ShadowFit(v, cov, worst * blur * math.sqrt(2.0 * math.pi))
+
+
+def band_rms(v: np.ndarray, x: np.ndarray, y: np.ndarray, r: np.ndarray, level: float,
+             limit: float = MAX_BAND_RMS) -> tuple[float, int]:
+    """The worst edge band's RMS residual r over the marker's ``level`` (the pixels x, y (px)
+    within 2.5 px of an edge of the quadrilateral v (4, 2), 3 px clear of its ends), and the
+    first edge over ``limit`` (-1: none)."""
     worst = 0.0
     for i, (n, off, _) in enumerate(_edges(v)):
         a, c = v[i], v[(i + 1) % 4]
@@ -337,10 +354,19 @@ def fit(image: np.ndarray, v0: np.ndarray, lut: np.ndarray) -> ShadowFit | str:
         L = float(np.hypot(*t))
         along = ((x - a[0]) * t[0] + (y - a[1]) * t[1]) / max(L, 1e-9)
         band = (np.abs(n[0] * x + n[1] * y - off) < 2.5) & (along > 3) & (L - along > 3)
-        rms = float(np.sqrt(np.mean(r[band] ** 2))) / p[9] if band.any() else math.inf
-        if not rms <= MAX_BAND_RMS:
-            return f"edge {i} does not fit the shadowed marker (band RMS {rms:.3f} of its level)"
+        rms = float(np.sqrt(np.mean(r[band] ** 2))) / level if band.any() else math.inf
+        if not rms <= limit:
+            return rms, i
         worst = max(worst, rms)
+    return worst, -1
+
+
+def vertex_covariance(r: np.ndarray, J: np.ndarray, f_scale: float, scale: float,
+                      floor_px: float) -> np.ndarray | str:
+    """The vertices' covariance (4, 2, 2) px² of a soft-L1 fit (residual r, Jacobian J, the
+    first 8 columns the vertices): the loss's Gauss-Newton Hessian scaled by a robust
+    residual variance, each vertex's larger variance times ``scale``² plus ``floor_px``²,
+    isotropic; or why not."""
     s2 = float(np.median(r ** 2)) / 0.455  # a robust residual variance
     # the loss's Gauss-Newton Hessian, as least_squares' modified Jacobian gives it
     Jm = J * ((1.0 + (r / f_scale) ** 2) ** -0.75)[:, None]
@@ -348,10 +374,8 @@ def fit(image: np.ndarray, v0: np.ndarray, lut: np.ndarray) -> ShadowFit | str:
         C = np.linalg.inv(Jm.T @ Jm) * s2
     except np.linalg.LinAlgError:
         return "the fit's covariance is singular"
-    if not (np.isfinite(C).all() and np.isfinite(v).all()):
+    if not np.isfinite(C).all():
         return "the fit's covariance is not finite"
     var = np.maximum(np.diag(C)[:8], 0.0).reshape(4, 2).max(1)
-    sigma2 = SIGMA_SCALE ** 2 * var + SIGMA_FLOOR_PX ** 2
-    cov = sigma2[:, None, None] * np.eye(2)
-    blur = abs(p[8]) + 0.3
-    return ShadowFit(v, cov, worst * blur * math.sqrt(2.0 * math.pi))
+    sigma2 = scale ** 2 * var + floor_px ** 2
+    return np.asarray(sigma2[:, None, None] * np.eye(2))

@@ -1,0 +1,210 @@
+"""The marker under a clipped highlight (a glossy print), fitted whole to the pixels that did
+not clip: the extractor's last resort for a marker its scans refuse there (issue 21;
+docs/measured.md "A model of the marker under a highlight").
+
+White light added to the marker leaves its chroma score (``colour.py``'s vector: linear
+colour along the marker's chroma direction, orthogonal to grey) unchanged, until a channel
+clips. So the score in the marker's box, with every pixel within ``MASK_PX`` of a clipped
+one (some channel at ``CLIPPED_LEVEL`` or more) left out, is fitted as the unshadowed
+model of ``shadow.py``:
+
+    score(x, y) = b + A · Π_edges Φ(d_i / σ)
+
+(11 parameters, ``shadow.robust_lm``). The start is the convex hull of the marker-coloured
+pixels of the seed's blob, the pieces a highlight splits it into joined across the clipped
+core (``JOIN_PX``), cut down to its four extreme points (the hull's diameter and the points
+farthest from it on each side).
+
+A fit is taken only if every edge is seen over at least ``MIN_SUPPORT`` of its length (an
+edge under the highlight from end to end is not measured: refused), every edge's band fits
+within ``MAX_BAND_RMS`` of the marker's level, the edges' fitted blur is at most
+``MAX_BLUR_PX`` (more: not a clean step), and the fit converged; then the tests any
+detection passes. Its vertices' reported sigma: ``SIGMA_SCALE`` times the fit's, with a
+floor ``SIGMA_FLOOR_PX`` (isotropic, px): the vertices a highlight hides are extrapolated
+from the visible parts of their edges, and the pixels next to the clipped ones are not quite
+clean (demosaicing, JPEG's chroma).
+
+Tuned on seeds 2024, 7 and 11; held out on seeds 31-35 and other photographs. Pure numpy and
+OpenCV: about 70 ms a fitted view at the median (only views every other route refused, with
+clipped pixels on the blob, pay it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from services.vertex_extractor import shadow
+from services.vertex_extractor.colour import chroma_direction, grid_mask
+
+CLIPPED_LEVEL = shadow.CLIPPED_LEVEL  # a pixel with a channel at or above this has clipped
+WINDOW_PX = 160          # the blob is looked for within this of the seed (px)
+JOIN_PX = 10             # the blob's pieces joined across clipped pixels this near (px)
+MASK_PX = 2              # pixels this near a clipped one are left out of the fit (px)
+MARGIN_PX = 14           # the fitted box: the start's plus this (px)
+MIN_MARKER_PX = 20       # the blob's unclipped marker pixels, at least
+MIN_SUPPORT = 0.2        # every edge's share seen (not masked), at least
+MAX_BAND_RMS = 0.1       # an edge band's RMS residual over the marker's level, at most
+MAX_BLUR_PX = 2.0        # the edges' fitted blur (Gaussian sigma, px), at most
+SIGMA_SCALE = 5.0        # the fit's vertex sigma understates the error (see the docstring)
+SIGMA_FLOOR_PX = 0.15    # px
+START_BLUR_PX = 2.5      # the blur the fit starts from: wide, so that edges far off pull
+MAX_EVALUATIONS = 80     # the fit's budget
+
+#: not tried: the extractor's own refusal says enough
+NO_HIGHLIGHT = "no clipped pixels on the marker's blob"
+NO_BLOB = "no marker-coloured blob at the seed"
+UNTRIED = (NO_HIGHLIGHT, NO_BLOB)
+
+
+@dataclass(frozen=True)
+class HighlightFit:
+    """A marker under a highlight fitted whole: vertices (4, 2) px (left, top, right,
+    bottom), their covariance (4, 2, 2) px², and the worst edge band's RMS residual as a
+    distance (px: over the edge profile's steepest slope)."""
+
+    vertices_px: np.ndarray
+    cov_px2: np.ndarray
+    residual_px: float
+
+
+def clockwise_from_left(v: np.ndarray) -> np.ndarray:
+    """The indices that order the convex quadrilateral v (4, 2) px clockwise on screen (y
+    down) from its leftmost vertex: left, top, right, bottom."""
+    c = v.mean(0)
+    order = np.argsort(np.arctan2(v[:, 1] - c[1], v[:, 0] - c[0]))
+    first = int(np.argmin(v[order, 0]))
+    return np.roll(order, -first)
+
+
+def extreme_points(points: np.ndarray) -> np.ndarray | None:
+    """Four points of the convex hull of ``points`` (n, 2) px: its diameter's ends and the
+    points farthest from the diameter on each side, left, top, right, bottom; None if the
+    hull is degenerate."""
+    hull = cv2.convexHull(points.astype(np.float32)).reshape(-1, 2).astype(float)
+    if hull.shape[0] < 4:
+        return None
+    D = ((hull[:, None] - hull[None]) ** 2).sum(-1)
+    i, k = np.unravel_index(int(np.argmax(D)), D.shape)
+    a, b = hull[i], hull[k]
+    t = (b - a) / max(float(np.hypot(*(b - a))), 1e-9)
+    side = (hull - a) @ np.array([-t[1], t[0]])
+    if side.max() < 1.0 or side.min() > -1.0:
+        return None
+    v = np.array([a, hull[int(np.argmax(side))], b, hull[int(np.argmin(side))]])
+    return v[clockwise_from_left(v)]
+
+
+def _disc(radius: int) -> np.ndarray:
+    return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
+
+
+def _blob(crop: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.ndarray,
+          green_bound: np.ndarray) -> tuple[np.ndarray, np.ndarray] | str:
+    """In a BGR crop, the seed's blob's marker-coloured pixels (its pieces joined across
+    clipped ones) and the crop's clipped pixels (bool masks), or why not."""
+    b, g, r = cv2.split(crop)
+    clipped = cv2.max(cv2.max(b, g), r) >= CLIPPED_LEVEL
+    if not clipped.any():
+        return NO_HIGHLIGHT
+    marker = grid_mask(crop, 1, 0, lut, vector, green_bound)[0] > 0
+    ys, xs = np.nonzero(marker)
+    if xs.size == 0:
+        return NO_BLOB
+    near = cv2.dilate(clipped.astype(np.uint8), _disc(JOIN_PX))
+    _, labels = cv2.connectedComponents(marker.astype(np.uint8) | near, connectivity=8)
+    j = int(np.argmin((xs - seed[0]) ** 2 + (ys - seed[1]) ** 2))
+    blob = labels == labels[ys[j], xs[j]]
+    if not (blob & clipped).any():
+        return NO_HIGHLIGHT
+    return blob & marker, clipped
+
+
+def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.ndarray,
+        green_bound: np.ndarray) -> HighlightFit | str:
+    """The marker at ``seed`` (x, y px) in a BGR uint8 image, under a clipped highlight,
+    fitted whole; or why not (a string). ``lut``, ``vector``, ``green_bound``: the colour
+    model's (``colour.ColourModel``)."""
+    H, W = image.shape[:2]
+    cx0, cy0 = max(seed[0] - WINDOW_PX, 0), max(seed[1] - WINDOW_PX, 0)
+    cx1, cy1 = min(seed[0] + WINDOW_PX + 1, W), min(seed[1] + WINDOW_PX + 1, H)
+    if cx1 <= cx0 or cy1 <= cy0:
+        return NO_BLOB
+    crop = np.ascontiguousarray(image[cy0:cy1, cx0:cx1])
+    found = _blob(crop, (seed[0] - cx0, seed[1] - cy0), lut, vector, green_bound)
+    if isinstance(found, str):
+        return found
+    marker, clipped = found
+    ys, xs = np.nonzero(marker)
+    v0 = extreme_points(np.column_stack([xs, ys]))
+    if v0 is None:
+        return "the blob is too thin for a quadrilateral"
+    x0, y0 = (max(int(z), 0) for z in np.floor(v0.min(0) - MARGIN_PX))
+    x1 = min(int(np.ceil(v0[:, 0].max() + MARGIN_PX)), crop.shape[1] - 1)
+    y1 = min(int(np.ceil(v0[:, 1].max() + MARGIN_PX)), crop.shape[0] - 1)
+    if (x1 - x0 + 1) * (y1 - y0 + 1) > shadow.MAX_BOX_PX:
+        return f"the marker's box is over {shadow.MAX_BOX_PX} px² (not fitted)"
+    masked = cv2.dilate(clipped[y0:y1 + 1, x0:x1 + 1].astype(np.uint8), _disc(MASK_PX)) > 0
+    lin = lut[crop[y0:y1 + 1, x0:x1 + 1]]
+    ink = marker[y0:y1 + 1, x0:x1 + 1] & ~masked
+    if ink.sum() < MIN_MARKER_PX:
+        return f"fewer than {MIN_MARKER_PX} unclipped marker pixels"
+    q = np.median(lin[ink], axis=0)
+    S = lin @ chroma_direction(q[0], q[1], q[2])
+    Y, X = np.mgrid[y0:y1 + 1, x0:x1 + 1].astype(float)
+    seen = ~masked
+    x, y, s = X[seen], Y[seen], S[seen]
+    surround = S[seen & ~marker[y0:y1 + 1, x0:x1 + 1]]
+    if surround.size < MIN_MARKER_PX:
+        return "too little surround around the marker"
+    b0 = float(np.median(surround))
+    f_scale = max(1.5 * float(np.median(np.abs(surround - b0))), 0.5)
+    p0 = np.array([*v0.ravel(), START_BLUR_PX - 0.3, float(np.median(S[ink])) - b0, b0])
+
+    def residual(p: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        f, J = shadow.model(np.r_[p, 1.0, 0.0, 0.0, 0.0], x, y, jac)  # k = 1: no shadow
+        return f - s, (J[:, :11] if J is not None else None)
+
+    solved = shadow.robust_lm(residual, p0, f_scale, MAX_EVALUATIONS)
+    if solved is None:
+        return f"the fit did not converge in {MAX_EVALUATIONS} evaluations"
+    p, r, J = solved
+    v = p[:8].reshape(4, 2)
+    if not (np.isfinite(p).all() and p[9] > 0):
+        return "the fit lost the marker"
+    blur = abs(p[8]) + 0.3
+    if blur > MAX_BLUR_PX:
+        return f"the edges' fitted blur {blur:.1f} px is over {MAX_BLUR_PX} px (not a clean step)"
+    seen_share = _seen_share(v, seen, x0, y0)
+    if (edge := int(np.argmin(seen_share))) >= 0 and seen_share[edge] < MIN_SUPPORT:
+        return (f"edge {edge} is under the highlight over {1 - seen_share[edge]:.0%} of its "
+                f"length (at most {1 - MIN_SUPPORT:.0%})")
+    worst, edge = shadow.band_rms(v, x, y, r, float(p[9]), MAX_BAND_RMS)
+    if edge >= 0:
+        return f"edge {edge} does not fit the marker (band RMS {worst:.3f} of its level)"
+    cov = shadow.vertex_covariance(r, J, f_scale, SIGMA_SCALE, SIGMA_FLOOR_PX)
+    if isinstance(cov, str):
+        return cov
+    order = clockwise_from_left(v)
+    offset = np.array([cx0, cy0], float)
+    return HighlightFit(v[order] + offset, cov[order],
+                        worst * blur * math.sqrt(2.0 * math.pi))
+
+
+def _seen_share(v: np.ndarray, seen: np.ndarray, x0: int, y0: int, samples: int = 40
+                ) -> np.ndarray:
+    """Each edge's (v[i] to v[i + 1], px in the crop) share of ``samples`` points over its
+    middle 90 % that fall on seen (not masked) pixels of the box at (x0, y0); outside the
+    box: not seen."""
+    t = np.linspace(0.05, 0.95, samples)[:, None]
+    h, w = seen.shape
+    share = np.zeros(4)
+    for i in range(4):
+        pts = np.rint(v[i] + t * (v[(i + 1) % 4] - v[i]) - [x0, y0]).astype(np.int64)
+        inside = (pts[:, 0] >= 0) & (pts[:, 0] < w) & (pts[:, 1] >= 0) & (pts[:, 1] < h)
+        pts = pts[inside]
+        share[i] = float(seen[pts[:, 1], pts[:, 0]].sum()) / samples
+    return share
