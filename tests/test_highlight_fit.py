@@ -66,7 +66,8 @@ def test_an_edge_under_the_highlight_end_to_end_is_refused():
     says so rather than guess it."""
     image = _glossy((101.0, 55.0), 6.0, 26.0)
     why = _fit(image, (70, 110))
-    assert isinstance(why, str) and "is under the highlight over" in why, why
+    assert isinstance(why, str) and "the upper right edge is under the highlight over" in why, \
+        why
 
 
 def test_without_clipped_pixels_the_fit_is_not_tried():
@@ -102,5 +103,5 @@ def test_a_highlight_over_most_of_an_edge_is_refused_with_why_the_fit_was_not_ta
     image, _ = _kept_frame("highlight_32")
     det = RhombusExtractor().extract(image)
     assert not det.found
-    assert "; fitted whole under a clipped highlight, refused: edge 1 is under the highlight" \
-        in det.reason, det.reason
+    assert "; fitted whole under a clipped highlight, refused: the upper right edge is under " \
+        "the highlight over" in det.reason, det.reason

@@ -98,7 +98,7 @@ Where we depart from the paper, keeping its spirit:
   (``shadow_model``; 5-300 ms, paid only on such views). Where clipped pixels touch the
   blob, the same fit without the shadow, the pixels near the clipped ones left out, from
   the blob's hull: a glossy print's highlight that hides too much of an edge for the scans
-  (``highlight.py``, ``highlight_model``; about 70 ms).
+  (``highlight.py``, ``highlight_model``; 40 ms at the median, up to 0.5 s).
 - The covariance reported (``covariance.py``) is that one scaled with the marker's size (the
   errors that matter do not average out along an edge) plus what the profile says about a
   misplaced edge: honest (NEES about 2) on small and large markers, under blur and shadows.
@@ -282,15 +282,12 @@ class ExtractorParams(BaseModel):
         "rhombus under a cast shadow's straight boundary, taken only where the fit and its "
         "surround show that shadow (shadow.py; 5-300 ms a view, paid only on such views)"))
     highlight_model: bool = Field(default=True, description=(
-        "last, on a cold search: a marker every other route refused, with clipped pixels "
+        "last, on a cold search: a marker every other route refused, with clipped white "
         "on its blob, is fitted whole with the pixels near the clipped ones left out, taken "
-        "only where every edge is seen over a fifth of its length (highlight.py; about 70 "
-        "ms a view, paid only on such views)"))
+        "only where every edge is seen over a fifth of its length (highlight.py; 40 ms a "
+        "view at the median, up to 0.5 s, paid only on such views)"))
 
 
-#: the quadrilateral's edges, from vertex k (left, top, right, bottom) to the next
-_EDGE_NAMES = ("upper left", "upper right", "lower right", "lower left")
-_VERTEX_NAMES = ("left", "top", "right", "bottom")
 _EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING,
           "orthogonal": scan.ORTHOGONAL}
 
@@ -657,14 +654,14 @@ class RhombusExtractor:
         if edge >= 0:
             self._seed = None
             return _miss(
-                f"the {_EDGE_NAMES[edge]}"
+                f"the {profile.EDGE_NAMES[edge]}"
                 " edge is not a clean step: its profile crosses half way "
                 f"{offsets[edge]:+.1f}"
                 " px from the fitted line (a shadow's boundary along it?)", tracked), True
         if vertex >= 0:  # (not tried again: a narrower window leaves the vertex as far off)
             self._seed = None
             return _miss(
-                f"the {_VERTEX_NAMES[vertex]}"
+                f"the {profile.VERTEX_NAMES[vertex]}"
                 " vertex is off its edges' steps: next to it an edge's profile crosses half way "
                 f"{deviation:.1f}"
                 " px off the others (a shadow's boundary near the vertex?)", tracked), False

@@ -24,6 +24,10 @@ from services.core.jit import njit
 from services.core.order import median_in_place
 from services.vertex_extractor.colour import chroma_direction, is_marker, score
 
+#: the quadrilateral's vertices and its edges, each from vertex k to the next
+VERTEX_NAMES = ("left", "top", "right", "bottom")
+EDGE_NAMES = ("upper left", "upper right", "lower right", "lower left")
+
 #: profile samples across an edge, px from the fitted line (outward positive); the first and
 #: last give the inside and outside levels
 OFFSETS = np.array([-4.0, -1.5, -1.25, -1.0, -0.75, -0.5, -0.25, 0.0, 0.25, 0.5, 0.75, 1.0,

@@ -270,8 +270,8 @@ def run(quick: bool) -> None:
             "intrinsics: the shape test (shape.py) and, where the line fits refuse for want "
             "of edge points, the deployment's rhombus fitted to those it shows (recover.py); "
             "the OpenCV routes get no prior. Last, a marker every route refused is fitted "
-            "whole under a cast shadow (shadow.py): the max ms column shows what such a "
-            "frame costs. "
+            "whole under a clipped highlight (highlight.py) or a cast shadow (shadow.py): "
+            "the max ms column shows what such a frame costs. "
             "Goals: "
             "wrong <= 1 % everywhere; fully visible found >= 95 %, median <= 2 x clean; "
             "occlusion (<= 20 % of the area) found >= 70 %.")
