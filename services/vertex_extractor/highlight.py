@@ -10,10 +10,10 @@ model of ``shadow.py``:
 
     score(x, y) = b + A · Π_edges Φ(d_i / σ)
 
-(11 parameters, ``shadow.robust_lm``). The start is the convex hull of the marker-coloured
-pixels of the seed's blob, the pieces a highlight splits it into joined across the clipped
-core (``JOIN_PX``), cut down to its four extreme points (the hull's diameter and the points
-farthest from it on each side).
+(11 parameters, ``shadow.robust_lm``). The start is the convex hull of the seed's blob (its
+marker-coloured pixels, the pieces a highlight splits it into joined across clipped ones
+within ``JOIN_PX``, and those clipped pixels), cut down to its four extreme points (the
+hull's diameter and the points farthest from it on each side).
 
 A fit is taken only if every edge is seen over at least ``MIN_SUPPORT`` of its length (an
 edge under the highlight from end to end is not measured: refused), every edge's band fits
@@ -25,8 +25,8 @@ from the visible parts of their edges, and the pixels next to the clipped ones a
 clean (demosaicing, JPEG's chroma).
 
 Tuned on seeds 2024, 7 and 11; held out on seeds 31-35 and other photographs. Pure numpy and
-OpenCV: 40 ms a view at the median, 0.17 s at the 95th percentile, 0.5 s at most (a fit may
-take up to ``MAX_EVALUATIONS``: the taken ones needed up to 71); only views every other route
+OpenCV: 40 ms a view at the median, 0.13 s at the 95th percentile, 0.43 s at most (a fit may
+take up to ``MAX_EVALUATIONS``: a start far off crawls in); only views every other route
 refused, with clipped white on the blob, pay it.
 """
 
@@ -105,10 +105,11 @@ def _disc(radius: int) -> np.ndarray:
 
 
 def _blob(crop: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.ndarray,
-          green_bound: np.ndarray) -> tuple[np.ndarray, np.ndarray] | str:
+          green_bound: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | str:
     """In a BGR crop, the seed's blob's marker-coloured pixels (its pieces joined across
-    clipped ones) and the crop's clipped pixels (some channel clipped; bool masks), or why
-    not: the blob must touch clipped white (every channel clipped: a highlight's core)."""
+    clipped ones), the crop's clipped pixels (some channel clipped) and the blob's (bool
+    masks); or why not: the blob must touch clipped white (every channel clipped: a
+    highlight's core)."""
     b, g, r = cv2.split(crop)
     clipped = cv2.max(cv2.max(b, g), r) >= CLIPPED_LEVEL
     white = cv2.min(cv2.min(b, g), r) >= CLIPPED_LEVEL  # (an over-exposed ink is no highlight)
@@ -124,7 +125,7 @@ def _blob(crop: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.n
     blob = labels == labels[ys[j], xs[j]]
     if not (blob & white).any():
         return NO_HIGHLIGHT
-    return blob & marker, clipped
+    return blob & marker, clipped, blob & clipped
 
 
 def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.ndarray,
@@ -141,8 +142,8 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
     found = _blob(crop, (seed[0] - cx0, seed[1] - cy0), lut, vector, green_bound)
     if isinstance(found, str):
         return found
-    marker, clipped = found
-    ys, xs = np.nonzero(marker)
+    marker, clipped, core = found
+    ys, xs = np.nonzero(marker | core)  # (a core over a vertex: the hull reaches it)
     v0 = extreme_points(np.column_stack([xs, ys]))
     if v0 is None:
         return "the blob is too thin for a quadrilateral"
