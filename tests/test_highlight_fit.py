@@ -7,25 +7,29 @@ import cv2
 import numpy as np
 import pytest
 
+from services.core.camera import CameraModel
+from services.core.mounts import Geometry
 from services.vertex_extractor import highlight
 from services.vertex_extractor.extractor import ExtractorParams, RhombusExtractor
 from tests.test_hard_conditions import _assert_within, _kept_frame
+from tests.test_shape_recovery import _kept
 
 #: a rhombus (left, top, right, bottom) px in a 160 x 160 frame
 RHOMBUS = np.array([[40.3, 82.1], [81.7, 30.4], [121.2, 79.6], [79.9, 131.8]])
 
 
-def _glossy(at: tuple[float, float], gain: float, radius: float) -> np.ndarray:
-    """A magenta RHOMBUS on a grey wall, area-exact (8 x 8 supersampling), with a white
-    Gaussian highlight (``gain`` x white light at ``at`` (px), ``radius`` px) added in linear
-    light, an optics blur (0.7 px), noise (0.4 % of white), clipped, sRGB-encoded; BGR
-    uint8, read-only."""
+def _glossy(at: tuple[float, float], gain: float, radius: float,
+            rhombus: np.ndarray = RHOMBUS) -> np.ndarray:
+    """A magenta ``rhombus`` (4, 2) px on a grey wall, area-exact (8 x 8 supersampling),
+    with a white Gaussian highlight (``gain`` x white light at ``at`` (px), ``radius`` px)
+    added in linear light, an optics blur (0.7 px), noise (0.4 % of white), clipped,
+    sRGB-encoded; BGR uint8, read-only."""
     n = 8
     ys, xs = (np.mgrid[0:160 * n, 0:160 * n] + 0.5) / n - 0.5  # (pixel centres at integers)
     inside = np.ones(xs.shape, bool)
-    c = RHOMBUS.mean(0)
+    c = rhombus.mean(0)
     for i in range(4):
-        a, b = RHOMBUS[i], RHOMBUS[(i + 1) % 4]
+        a, b = rhombus[i], rhombus[(i + 1) % 4]
         normal = np.array([a[1] - b[1], b[0] - a[0]])
         sign = np.sign(normal @ (c - a))
         inside &= sign * ((xs - a[0]) * normal[0] + (ys - a[1]) * normal[1]) >= 0
@@ -42,9 +46,28 @@ def _glossy(at: tuple[float, float], gain: float, radius: float) -> np.ndarray:
     return image
 
 
-def _fit(image: np.ndarray, seed: tuple[int, int]) -> highlight.HighlightFit | str:
+def _fit(image: np.ndarray, seed: tuple[int, int], camera: CameraModel | None = None
+         ) -> highlight.HighlightFit | str:
     c = ExtractorParams().colour
-    return highlight.fit(image, seed, c.lut, c.vector, c.green_bound)
+    model = Geometry().marker_points() if camera is not None else None
+    return highlight.fit(image, seed, c.lut, c.vector, c.green_bound, camera, model)
+
+
+def _seen_by_the_paper_camera(turn_deg: float, distance_m: float
+                              ) -> tuple[np.ndarray, CameraModel]:
+    """The default marker's vertices (4, 2) px, upright, turned ``turn_deg`` about the
+    vertical, ``distance_m`` ahead of the paper's camera, and that camera with its principal
+    point moved to centre them in a 160 x 160 px frame."""
+    a = np.radians(turn_deg)
+    R = np.array([[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]]) @ np.diag(
+        [1.0, -1.0, -1.0])  # (the marker's y up, its z towards the camera)
+    rvec, t = cv2.Rodrigues(R)[0], np.array([0.0, 0.0, distance_m])
+    paper = CameraModel.paper()
+    model = Geometry().marker_points()
+    K = paper.K.copy()
+    K[:2, 2] += 80.0 - cv2.projectPoints(model, rvec, t, K, paper.dist)[0].reshape(4, 2).mean(0)
+    camera = CameraModel(K, paper.dist.copy(), 160, 160)
+    return cv2.projectPoints(model, rvec, t, K, camera.dist)[0].reshape(4, 2), camera
 
 
 def test_a_clipped_highlight_over_a_vertex_is_fitted_from_the_edges_it_leaves():
@@ -68,6 +91,25 @@ def test_an_edge_under_the_highlight_end_to_end_is_refused():
     why = _fit(image, (70, 110))
     assert isinstance(why, str) and "the upper right edge is under the highlight over" in why, \
         why
+
+
+def test_with_intrinsics_an_edge_under_the_highlight_is_given_by_the_known_rhombus():
+    """The upper right edge wholly under the highlight: without intrinsics refused (nothing
+    measures it); with them the marker is fitted as the deployment's rhombus, its pose fixed
+    by the three seen edges: every vertex within 0.1 px and 3 reported sigmas, the hidden
+    edge's two the more uncertain."""
+    rhombus, camera = _seen_by_the_paper_camera(10.0, 0.6)
+    image = _glossy(tuple(0.5 * (rhombus[1] + rhombus[2])), 6.0,
+                    0.35 * float(np.linalg.norm(rhombus[2] - rhombus[1])), rhombus)
+    seed = (int(rhombus[0, 0]) + 10, 80)
+    why = _fit(image, seed)
+    assert isinstance(why, str) and "the upper right edge is under the highlight" in why, why
+    fit = _fit(image, seed, camera)
+    assert isinstance(fit, highlight.HighlightFit), fit
+    error = np.linalg.norm(fit.vertices_px - rhombus, axis=1)
+    sigma = np.sqrt(fit.cov_px2[:, 0, 0])
+    assert error.max() < 0.1 and np.all(error < 3 * sigma), (error, sigma)
+    assert sigma[[1, 2]].min() > sigma[[0, 3]].max()
 
 
 def test_without_clipped_pixels_the_fit_is_not_tried():
@@ -105,3 +147,19 @@ def test_a_highlight_over_most_of_an_edge_is_refused_with_why_the_fit_was_not_ta
     assert not det.found
     assert "; fitted whole under a clipped highlight, refused: the upper right edge is under " \
         "the highlight over" in det.reason, det.reason
+
+
+def test_with_intrinsics_a_kept_frames_hidden_edge_is_given_by_the_known_rhombus():
+    """A kept webcam frame whose highlight washes out the lower left edge: without
+    intrinsics refused, with them but without the whole-marker fit too (the edge points give
+    no three lines), with both found as the rhombus's pose within 0.2 px and 3 sigmas."""
+    image, truth, camera = _kept("highlight_24")
+    det = RhombusExtractor().extract(image)
+    assert not det.found and "fitted whole under a clipped highlight, refused: the lower " \
+        "left edge is under the highlight" in det.reason, det.reason
+    ex = RhombusExtractor(ExtractorParams(highlight_model=False))
+    ex.use_intrinsics(camera)
+    assert not ex.extract(image).found
+    ex = RhombusExtractor()
+    ex.use_intrinsics(camera)
+    _assert_within(ex.extract(image), truth, 0.2)

@@ -95,10 +95,11 @@ Where we depart from the paper, keeping its spirit:
   the rhombus under a cast shadow's straight boundary (``shadow.py``: blurred edges times a
   half-plane's darkening, 15 parameters), and taken only where the fit and the surround
   both show that shadow, under the same shape tests and uncertainty limit
-  (``shadow_model``; 5-300 ms, paid only on such views). Where clipped pixels touch the
+  (``shadow_model``; 5-300 ms, paid only on such views). Where clipped white touches the
   blob, the same fit without the shadow, the pixels near the clipped ones left out, from
   the blob's hull: a glossy print's highlight that hides too much of an edge for the scans
-  (``highlight.py``, ``highlight_model``; 40 ms at the median, up to 0.5 s).
+  (``highlight.py``, ``highlight_model``; 40 ms at the median, up to 0.6 s); with
+  intrinsics, one edge under the highlight is given by the rhombus's pose.
 - The covariance reported (``covariance.py``) is that one scaled with the marker's size (the
   errors that matter do not average out along an edge) plus what the profile says about a
   misplaced edge: honest (NEES about 2) on small and large markers, under blur and shadows.
@@ -285,7 +286,7 @@ class ExtractorParams(BaseModel):
         "last, on a cold search: a marker every other route refused, with clipped white "
         "on its blob, is fitted whole with the pixels near the clipped ones left out, taken "
         "only where every edge is seen over a fifth of its length (highlight.py; 40 ms a "
-        "view at the median, up to 0.5 s, paid only on such views)"))
+        "view at the median, up to 0.6 s, paid only on such views)"))
 
 
 _EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING,
@@ -571,7 +572,8 @@ class RhombusExtractor:
         (``highlight.py``), if the fit is taken and passes the tests any detection passes;
         else why not (the scans' refusal stands)."""
         c = self.params.colour
-        fit = highlight.fit(image, seed[:2], c.lut, c.vector, c.green_bound)
+        fit = highlight.fit(image, seed[:2], c.lut, c.vector, c.green_bound,
+                            *((test.camera, test.marker_points) if test is not None else ()))
         return fit if isinstance(fit, str) else self._as_detection(image, fit, prm, test)
 
     def _shadowed(self, image: np.ndarray, v0: np.ndarray, prm: np.ndarray,

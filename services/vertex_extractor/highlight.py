@@ -15,8 +15,16 @@ marker-coloured pixels, the pieces a highlight splits it into joined across clip
 within ``JOIN_PX``, and those clipped pixels), cut down to its four extreme points (the
 hull's diameter and the points farthest from it on each side).
 
+With the camera's intrinsics, a marker with one edge under the highlight and the other three
+seen over ``MIN_POSE_SUPPORT`` of their length is fitted again as the deployment's rhombus
+seen by the camera: its pose (6 parameters) instead of the vertices, started from the poses
+that put it on the three seen edges (``recover.p3l``) and from IPPE, the best
+``POSE_STARTS`` fitted; where another pose fits within ``POSE_TIE`` of the best cost with a
+vertex more than ``POSE_APART_PX`` away, the three edges do not tell (refused).
+
 A fit is taken only if every edge is seen over at least ``MIN_SUPPORT`` of its length (an
-edge under the highlight from end to end is not measured: refused), every edge's band fits
+edge under the highlight from end to end is not measured: refused, but for the pose's one
+hidden edge), every edge's band fits
 within ``MAX_BAND_RMS`` of the marker's level, the edges' fitted blur is at most
 ``MAX_BLUR_PX`` (more: not a clean step), and the fit converged; then the tests any
 detection passes. Its vertices' reported sigma: ``SIGMA_SCALE`` times the fit's, with a
@@ -26,19 +34,23 @@ clean (demosaicing, JPEG's chroma).
 
 Tuned on seeds 2024, 7 and 11; held out on seeds 31-35 and other photographs. Pure numpy and
 OpenCV: 40 ms a view at the median, 0.13 s at the 95th percentile, 0.43 s at most (a fit may
-take up to ``MAX_EVALUATIONS``: a start far off crawls in); only views every other route
-refused, with clipped white on the blob, pay it.
+take up to ``MAX_EVALUATIONS``: a start far off crawls in); with intrinsics, the pose's fits
+too, 46 ms, 0.3 s and 0.6 s. Only views every other route refused, with clipped white on the
+blob, pay it.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
-from services.vertex_extractor import shadow
+from services.core.camera import CameraModel, undistort_px
+from services.pose_estimator.p4p import OK, ippe4
+from services.vertex_extractor import recover, shadow
 from services.vertex_extractor.colour import chroma_direction, grid_mask
 from services.vertex_extractor.profile import EDGE_NAMES
 
@@ -49,6 +61,10 @@ MASK_PX = 2              # pixels this near a clipped one are left out of the fi
 MARGIN_PX = 14           # the fitted box: the start's plus this (px)
 MIN_MARKER_PX = 20       # the blob's unclipped marker pixels, at least
 MIN_SUPPORT = 0.2        # every edge's share seen (not masked), at least
+MIN_POSE_SUPPORT = 0.3   # with intrinsics, one edge may be hidden if the others are seen so
+POSE_STARTS = 3          # the poses fitted, from the starts that fit best
+POSE_TIE = 0.005         # another pose whose cost is within this share of the best ...
+POSE_APART_PX = 1.0      # ... with a vertex further than this from the best's: ambiguous
 MAX_BAND_RMS = 0.1       # an edge band's RMS residual over the marker's level, at most
 MAX_BLUR_PX = 2.0        # the edges' fitted blur (Gaussian sigma, px), at most
 SIGMA_SCALE = 5.0        # the fit's vertex sigma understates the error (see the docstring)
@@ -129,10 +145,13 @@ def _blob(crop: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.n
 
 
 def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.ndarray,
-        green_bound: np.ndarray) -> HighlightFit | str:
+        green_bound: np.ndarray, camera: CameraModel | None = None,
+        model_m: np.ndarray | None = None) -> HighlightFit | str:
     """The marker at ``seed`` (x, y px) in a BGR uint8 image, under a clipped highlight,
     fitted whole; or why not (a string). ``lut``, ``vector``, ``green_bound``: the colour
-    model's (``colour.ColourModel``)."""
+    model's (``colour.ColourModel``). With the ``camera`` and the rhombus ``model_m`` (4, 3)
+    m (left, top, right, bottom), a marker with one edge under the highlight is fitted as
+    the rhombus's pose, its other three edges fixing it (``_fit_pose``)."""
     H, W = image.shape[:2]
     cx0, cy0 = max(seed[0] - WINDOW_PX, 0), max(seed[1] - WINDOW_PX, 0)
     cx1, cy1 = min(seed[0] + WINDOW_PX + 1, W), min(seed[1] + WINDOW_PX + 1, H)
@@ -185,18 +204,88 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
     if blur > MAX_BLUR_PX:
         return f"the edges' fitted blur {blur:.1f} px is over {MAX_BLUR_PX} px (not a clean step)"
     seen_share = _seen_share(v, seen, x0, y0)
+    corner = np.array([cx0, cy0], float)  # (the crop's, in the image)
+    to_vertices: np.ndarray | None = None  # (the vertices are the first 8 parameters)
+    unseen = -1  # (the edge the pose gives)
     if seen_share[edge := int(np.argmin(seen_share))] < MIN_SUPPORT:
-        return (f"the {EDGE_NAMES[edge]} edge is under the highlight over "
-                f"{1 - seen_share[edge]:.0%} of its length (at most {1 - MIN_SUPPORT:.0%})")
-    worst, edge = shadow.band_rms(v, x, y, r, float(p[9]), MAX_BAND_RMS)
+        hidden = (f"the {EDGE_NAMES[edge]} edge is under the highlight over "
+                  f"{1 - seen_share[edge]:.0%} of its length (at most {1 - MIN_SUPPORT:.0%})")
+        if camera is None or model_m is None or np.sort(seen_share)[1] < MIN_POSE_SUPPORT:
+            return hidden
+        posed = _fit_pose(residual, p, v, edge, camera, model_m, corner, f_scale)
+        if isinstance(posed, str):
+            return f"{hidden}; as the rhombus's pose: {posed}"
+        p, r, J, v, to_vertices = posed
+        order, unseen = np.arange(4), edge
+        if (blur := abs(p[-3]) + 0.3) > MAX_BLUR_PX:
+            return f"the pose's fitted blur {blur:.1f} px is over {MAX_BLUR_PX} px"
+    worst, edge = shadow.band_rms(v, x, y, r, float(p[-2]), MAX_BAND_RMS, unseen)
     if edge >= 0:
         return (f"the {EDGE_NAMES[edge]} edge does not fit the marker (band RMS {worst:.3f} "
                 f"of its level)")
-    cov = shadow.vertex_covariance(r, J, f_scale, SIGMA_SCALE, SIGMA_FLOOR_PX)
+    cov = shadow.vertex_covariance(r, J, f_scale, SIGMA_SCALE, SIGMA_FLOOR_PX, to_vertices)
     if isinstance(cov, str):
         return cov
-    corner = np.array([cx0, cy0], float)  # (the crop's, in the image)
     return HighlightFit(v + corner, cov[order], worst * blur * math.sqrt(2.0 * math.pi))
+
+
+def _fit_pose(residual: Callable[[np.ndarray, bool], tuple[np.ndarray, np.ndarray | None]],
+              p: np.ndarray, v: np.ndarray, hidden: int, camera: CameraModel,
+              model_m: np.ndarray, corner: np.ndarray, f_scale: float
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | str:
+    """The marker fitted (``residual`` of the 11 parameters p: vertices px in the crop,
+    blur, level, floor) as the rhombus ``model_m`` seen by ``camera``: 9 parameters (the
+    rotation vector, the translation (m), blur, level, floor), started from the poses that
+    put its edges on the three seen edges of the free fit v (left, top, right, bottom; edge
+    ``hidden`` not seen: ``recover.p3l``) and from IPPE on v. The parameters, residual,
+    Jacobian, vertices (4, 2) px in the crop and their derivatives by the pose (8, 6); or why
+    not."""
+    K, dist = camera.K, camera.dist
+    obj = np.ascontiguousarray(model_m, np.float64)
+
+    def vertices(q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        px, jac = cv2.projectPoints(obj, q[:3], q[3:6], K, dist)
+        return px.reshape(4, 2) - corner, jac[:, :6]
+
+    def posed(q: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
+        w, dw = vertices(q)
+        f, J = residual(np.r_[w.ravel(), q[6:]], jac)
+        if J is None:
+            return f, None
+        return f, np.hstack([J[:, :8] @ dw, J[:, 8:]])
+
+    lines = [None if e == hidden else (v[e] + corner, v[(e + 1) % 4] - v[e]) for e in range(4)]
+    normals = recover.edge_normals(lines, camera)
+    starts = recover.p3l(normals, obj, hidden)
+    status, Rs, ts, _, count = ippe4(obj, np.ascontiguousarray(undistort_px(camera, v + corner)))
+    starts += [(Rs[i], ts[i]) for i in range(count)] if status == OK else []
+
+    def cost(r: np.ndarray) -> float:
+        return float(np.sum(np.sqrt(1.0 + (r / f_scale) ** 2) - 1.0))
+
+    first: list[tuple[float, int, np.ndarray]] = []
+    for R, t in starts:
+        if (obj @ R.T + t)[:, 2].min() <= 0.0:
+            continue
+        q0 = np.r_[cv2.Rodrigues(R)[0].ravel(), t, p[8:]]
+        first.append((cost(posed(q0, False)[0]), len(first), q0))
+    fits: list[tuple[float, int, tuple[np.ndarray, np.ndarray, np.ndarray]]] = []
+    for _, _, q0 in sorted(first, key=lambda f: f[:2])[:POSE_STARTS]:
+        solved = shadow.robust_lm(posed, q0, f_scale, MAX_EVALUATIONS)
+        if solved is not None and np.isfinite(vertices(solved[0])[0]).all():
+            fits.append((cost(solved[1]), len(fits), solved))
+    if not fits:
+        return ("no pose puts the rhombus on its three seen edges" if not first else
+                f"the fit did not converge in {MAX_EVALUATIONS} evaluations")
+    fits.sort(key=lambda f: f[:2])
+    q, r, J = fits[0][2]
+    w, dw = vertices(q)
+    for c, _, other in fits[1:]:
+        apart = float(np.linalg.norm(vertices(other[0])[0] - w, axis=1).max())
+        if c <= (1.0 + POSE_TIE) * fits[0][0] and apart > POSE_APART_PX:
+            return (f"two poses fit its three seen edges alike (costs {c / fits[0][0] - 1:.1%} "
+                    f"apart), their vertices {apart:.1f} px apart")
+    return q, r, J, w, dw
 
 
 def _seen_share(v: np.ndarray, seen: np.ndarray, x0: int, y0: int, samples: int = 40

@@ -368,8 +368,8 @@ def _marker_outside(img: np.ndarray, v: np.ndarray, seed: tuple[int, int], lut: 
     return int(_outside_marker(img, mask.astype(np.bool_), x0, y0, lut, m, halo)), area
 
 
-def _normals(fitted: list[tuple[np.ndarray, np.ndarray] | None], camera: CameraModel
-             ) -> list[np.ndarray | None]:
+def edge_normals(fitted: list[tuple[np.ndarray, np.ndarray] | None], camera: CameraModel
+                 ) -> list[np.ndarray | None]:
     """Each image line's (point, direction px) plane through the camera centre: its unit
     normal in normalised image coordinates (undistorted at two points 10 px apart)."""
     normals: list[np.ndarray | None] = []
@@ -411,7 +411,7 @@ def _candidates(fitted: list[tuple[np.ndarray, np.ndarray] | None], chains: list
         status, Rs, ts, _, count = ippe4(model, np.ascontiguousarray(undistort_px(camera, quad)))
         if status == OK:
             poses += [(Rs[i].copy(), ts[i].copy()) for i in range(count)]
-    normals = _normals(fitted, camera)
+    normals = edge_normals(fitted, camera)
     for hidden in range(4):
         poses += p3l(normals, model, hidden)
     return poses

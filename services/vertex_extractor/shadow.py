@@ -343,12 +343,14 @@ def fit(image: np.ndarray, v0: np.ndarray, lut: np.ndarray) -> ShadowFit | str:
 
 
 def band_rms(v: np.ndarray, x: np.ndarray, y: np.ndarray, r: np.ndarray, level: float,
-             limit: float = MAX_BAND_RMS) -> tuple[float, int]:
+             limit: float = MAX_BAND_RMS, unseen: int = -1) -> tuple[float, int]:
     """The worst edge band's RMS residual r over the marker's ``level`` (the pixels x, y (px)
     within 2.5 px of an edge of the quadrilateral v (4, 2), 3 px clear of its ends), and the
-    first edge over ``limit`` (-1: none)."""
+    first edge over ``limit`` (-1: none); edge ``unseen`` is not tested."""
     worst = 0.0
     for i, (n, off, _) in enumerate(_edges(v)):
+        if i == unseen:
+            continue
         a, c = v[i], v[(i + 1) % 4]
         t = c - a
         L = float(np.hypot(*t))
@@ -362,11 +364,13 @@ def band_rms(v: np.ndarray, x: np.ndarray, y: np.ndarray, r: np.ndarray, level: 
 
 
 def vertex_covariance(r: np.ndarray, J: np.ndarray, f_scale: float, scale: float,
-                      floor_px: float) -> np.ndarray | str:
+                      floor_px: float, to_vertices: np.ndarray | None = None
+                      ) -> np.ndarray | str:
     """The vertices' covariance (4, 2, 2) px² of a soft-L1 fit (residual r, Jacobian J, the
-    first 8 columns the vertices): the loss's Gauss-Newton Hessian scaled by a robust
-    residual variance, each vertex's larger variance times ``scale``² plus ``floor_px``²,
-    isotropic; or why not."""
+    first 8 columns the vertices, or the first k parameters mapped to them by
+    ``to_vertices`` (8, k)): the loss's Gauss-Newton Hessian scaled by a robust residual
+    variance, each vertex's larger variance times ``scale``² plus ``floor_px``², isotropic;
+    or why not."""
     s2 = float(np.median(r ** 2)) / 0.455  # a robust residual variance
     # the loss's Gauss-Newton Hessian, as least_squares' modified Jacobian gives it
     Jm = J * ((1.0 + (r / f_scale) ** 2) ** -0.75)[:, None]
@@ -376,6 +380,9 @@ def vertex_covariance(r: np.ndarray, J: np.ndarray, f_scale: float, scale: float
         return "the fit's covariance is singular"
     if not np.isfinite(C).all():
         return "the fit's covariance is not finite"
+    if to_vertices is not None:
+        k = to_vertices.shape[1]
+        C = to_vertices @ C[:k, :k] @ to_vertices.T
     var = np.maximum(np.diag(C)[:8], 0.0).reshape(4, 2).max(1)
     sigma2 = scale ** 2 * var + floor_px ** 2
     return np.asarray(sigma2[:, None, None] * np.eye(2))
