@@ -105,3 +105,23 @@ def test_a_clean_marker_and_a_wrong_start_are_refused_with_their_reason():
     flat[30:90, 30:90] = (170, 60, 200)  # a uniform magenta square, no shadow
     square = np.array([[30.0, 30.0], [89.0, 30.0], [89.0, 89.0], [30.0, 89.0]])
     assert "no shadow's line" in str(shadow.fit(flat, square, lut))
+
+
+def test_a_pink_card_beside_a_marker_fitted_whole_is_no_silent_pick():
+    """A marker-like card beside the shadowed marker (a kept frame every scan refuses): the
+    card's scans pass, but the marker fitted whole passes too, with edges as straight, so the
+    frame is ambiguous (refused with that reason), as when both pass the scans; it is not the
+    card taken for the marker because the fits come last (without the fit it is: no shape
+    test tells them apart without intrinsics)."""
+    from tests.test_highlight_fit import RHOMBUS, _glossy
+    img, _ = _kept_frame("shadow_hard_171")
+    card = _glossy((0.0, 0.0), 0.0, 1.0, RHOMBUS)  # (no highlight)
+    canvas = np.empty((max(img.shape[0], 160), img.shape[1] + 160, 3), np.uint8)
+    canvas[:] = np.median(card.reshape(-1, 3), axis=0).astype(np.uint8)
+    canvas[:img.shape[0], :img.shape[1]] = img
+    canvas[:160, img.shape[1]:] = card
+    canvas.flags.writeable = False
+    det = RhombusExtractor().extract(canvas)
+    assert not det.found and "two or more marker-like rhombi" in det.reason, det.reason
+    taken = RhombusExtractor(ExtractorParams(shadow_model=False)).extract(canvas)
+    assert taken.found and np.abs(taken.vertices_px - RHOMBUS - [img.shape[1], 0]).max() < 0.5

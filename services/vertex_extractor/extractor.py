@@ -115,6 +115,7 @@ cross-checked, and a shadow's boundary near a vertex can still move both scans.
 
 from __future__ import annotations
 
+import itertools
 import math
 from dataclasses import dataclass
 from typing import Literal
@@ -401,7 +402,7 @@ class RhombusExtractor:
                          f"{image.dtype}")
         image = read_only(np.ascontiguousarray(image))
         if self._seed is not None:
-            det = self._extract_from(image, self._seed, tracked=True)
+            det = self._scanned(image, self._seed, tracked=True)[0]  # (no fit: a cold try's)
             if det.found:
                 return det
         seeds = self._coarse_search(image)
@@ -416,7 +417,10 @@ class RhombusExtractor:
         too, whatever its size, with edges about as straight (residual within 3x + 0.1 px),
         makes the frame ambiguous; otherwise the straighter one is the marker (a pink card that
         passes as the marker looks bigger or smaller with its distance: docs/measured.md "The
-        marker's shape")."""
+        marker's shape"). The whole-marker fits (under a highlight or a shadow) come after
+        every blob's scans: a highlight splits a marker's blob, and its other piece's scans
+        find it better; a blob they find is still compared with the others, fitted whole
+        where their scans refuse them."""
         first: Detection | None = None
         refusals: list[_Refusal] = []
         for i, seed_px in enumerate(seeds):
@@ -426,8 +430,12 @@ class RhombusExtractor:
                 refusals += [refusal] if refusal is not None else []
                 continue
             seed = self._seed
-            for other_px in seeds[i + 1:]:
-                other = self._scanned(image, other_px, tracked=False)[0]
+            # every other blob, fitted whole where its scans refuse it (the marker under a
+            # shadow or a highlight, and this one a pink card?)
+            others = itertools.chain(
+                (self._fitted_whole_marker(image, refusal) for refusal in refusals),
+                (self._extract_from(image, other_px) for other_px in seeds[i + 1:]))
+            for other in others:
                 if not other.found or _same_marker(det, other):
                     continue  # (a highlight or an arm splits one marker's blob in two)
                 lo, hi = sorted((det.residual_px, other.residual_px))
@@ -477,32 +485,27 @@ class RhombusExtractor:
             seeds.append((s // 2 + (cx + j0) * s, s // 2 + (cy + i0) * s, s))
         return seeds
 
-    def _extract_from(self, image: np.ndarray, seed: tuple[int, int, int],
-                      tracked: bool) -> Detection:
-        """The marker at or near ``seed`` (x, y, search radius px): scanned
-        (``_scanned``), then, on a cold try that every scan refused, fitted whole."""
-        det, refusal = self._scanned(image, seed, tracked)
-        return self._fitted_whole_marker(image, refusal) if refusal is not None else det
+    def _extract_from(self, image: np.ndarray, seed: tuple[int, int, int]) -> Detection:
+        """The marker at or near ``seed`` (x, y, search radius px) on a cold try: scanned,
+        and fitted whole if every scan refuses it."""
+        det, refusal = self._scanned(image, seed, tracked=False)
+        return det if refusal is None else self._fitted_whole_marker(image, refusal)
 
     def _fitted_whole_marker(self, image: np.ndarray, refusal: _Refusal) -> Detection:
         """A marker every scan refused on a cold try, fitted whole under a clipped highlight
         (``highlight.py``) or a cast shadow (``shadow.py``); else the scans' refusal, with
         why a fit that was tried was not taken."""
         p, det = self.params, refusal.det
-        if p.highlight_model:
-            lit = self._highlighted(image, refusal.seed, refusal.prm, refusal.test)
-            if isinstance(lit, Detection):
-                return lit
-            if lit not in highlight.UNTRIED:
-                return _miss(f"{det.reason}; fitted whole under a clipped highlight, refused: "
-                             f"{lit}")
-        if p.shadow_model:
-            shadowed = self._shadowed(image, refusal.first_v, refusal.prm, refusal.test)
-            if isinstance(shadowed, Detection):
-                return shadowed
-            if shadowed not in shadow.UNTRIED:
-                return _miss(f"{det.reason}; fitted whole under a cast shadow, refused: "
-                             f"{shadowed}")
+        fits = ((p.highlight_model, "a clipped highlight", highlight.UNTRIED,
+                 lambda: self._highlighted(image, refusal.seed, refusal.prm, refusal.test)),
+                (p.shadow_model, "a cast shadow", shadow.UNTRIED,
+                 lambda: self._shadowed(image, refusal.first_v, refusal.prm, refusal.test)))
+        for on, under, untried, attempt in fits:
+            got = attempt() if on else untried[0]
+            if isinstance(got, Detection):
+                return got
+            if got not in untried:
+                return _miss(f"{det.reason}; fitted whole under {under}, refused: {got}")
         return det
 
     def _scanned(self, image: np.ndarray, seed: tuple[int, int, int], tracked: bool
