@@ -496,16 +496,17 @@ class RhombusExtractor:
         (``highlight.py``) or a cast shadow (``shadow.py``); else the scans' refusal, with
         why a fit that was tried was not taken."""
         p, det = self.params, refusal.det
-        fits = ((p.highlight_model, "a clipped highlight", highlight.UNTRIED,
+        fits = ((p.highlight_model, "; fitted whole under a clipped highlight, refused: ",
+                 highlight.UNTRIED,
                  lambda: self._highlighted(image, refusal.seed, refusal.prm, refusal.test)),
-                (p.shadow_model, "a cast shadow", shadow.UNTRIED,
+                (p.shadow_model, "; fitted whole under a cast shadow, refused: ", shadow.UNTRIED,
                  lambda: self._shadowed(image, refusal.first_v, refusal.prm, refusal.test)))
-        for on, under, untried, attempt in fits:
+        for on, why_not, untried, attempt in fits:
             got = attempt() if on else untried[0]
             if isinstance(got, Detection):
                 return got
             if got not in untried:
-                return _miss(f"{det.reason}; fitted whole under {under}, refused: {got}")
+                return _miss(f"{det.reason}{why_not}{got}")
         return det
 
     def _scanned(self, image: np.ndarray, seed: tuple[int, int, int], tracked: bool
