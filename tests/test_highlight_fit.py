@@ -127,6 +127,7 @@ def test_vertices_are_ordered_left_top_right_bottom():
 @pytest.mark.parametrize("name, refusal", [
     ("highlight_20", "too few edge points on one side"),
     ("highlight_77", "vertex uncertainty too large"),
+    ("highlight_156", "too few measurable edge points"),  # (a vertex and most of two edges)
 ])
 def test_a_highlight_the_scans_refuse_is_fitted_whole_within_its_uncertainty(
         name: str, refusal: str):

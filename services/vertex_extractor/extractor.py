@@ -98,7 +98,7 @@ Where we depart from the paper, keeping its spirit:
   (``shadow_model``; 5-300 ms, paid only on such views). Where clipped white touches the
   blob, the same fit without the shadow, the pixels near the clipped ones left out, from
   the blob's hull: a glossy print's highlight that hides too much of an edge for the scans
-  (``highlight.py``, ``highlight_model``; 40 ms at the median, up to 0.6 s); with
+  (``highlight.py``, ``highlight_model``; 46 ms at the median, up to 0.8 s); with
   intrinsics, one edge under the highlight is given by the rhombus's pose.
 - The covariance reported (``covariance.py``) is that one scaled with the marker's size (the
   errors that matter do not average out along an edge) plus what the profile says about a
@@ -286,8 +286,8 @@ class ExtractorParams(BaseModel):
     highlight_model: bool = Field(default=True, description=(
         "last, on a cold search: a marker every other route refused, with clipped white "
         "on its blob, is fitted whole with the pixels near the clipped ones left out, taken "
-        "only where every edge is seen over a fifth of its length (highlight.py; 40 ms a "
-        "view at the median, up to 0.6 s, paid only on such views)"))
+        "only where every edge is seen over a fifth of its length (highlight.py; 46 ms a "
+        "view at the median, up to 0.8 s, paid only on such views)"))
 
 
 _EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING,
