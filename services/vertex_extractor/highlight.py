@@ -164,7 +164,11 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
     cx1, cy1 = min(seed[0] + WINDOW_PX + 1, W), min(seed[1] + WINDOW_PX + 1, H)
     if cx1 <= cx0 or cy1 <= cy0:
         return NO_BLOB
-    crop = np.ascontiguousarray(image[cy0:cy1, cx0:cx1])
+    window = image[cy0:cy1, cx0:cx1]
+    level = (CLIPPED_LEVEL,) * 3
+    if not cv2.countNonZero(cv2.inRange(window, level, (255, 255, 255))):
+        return NO_HIGHLIGHT  # (the common case, first and cheaply: no clipped white near)
+    crop = np.ascontiguousarray(window)
     found = _blob(crop, (seed[0] - cx0, seed[1] - cy0), lut, vector, green_bound)
     if isinstance(found, str):
         return found
