@@ -127,17 +127,15 @@ def _disc(radius: int) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
 
 
-def _blob(crop: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.ndarray,
-          green_bound: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray] | str:
-    """In a BGR crop, the seed's blob's marker-coloured pixels (its pieces joined across
-    clipped ones), the crop's clipped pixels (some channel clipped) and the blob's (bool
-    masks); or why not: the blob must touch clipped white (every channel clipped: a
-    highlight's core)."""
+def _blob(crop: np.ndarray, white: np.ndarray, seed: tuple[int, int], lut: np.ndarray,
+          vector: np.ndarray, green_bound: np.ndarray
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | str:
+    """In a BGR crop with its clipped white (every channel clipped: bool mask), the seed's
+    blob's marker-coloured pixels (its pieces joined across clipped ones), the crop's
+    clipped pixels (some channel clipped) and the blob's (bool masks); or why not: clipped
+    white must lie on the blob or within ``WHITE_NEAR_PX`` of it."""
     b, g, r = cv2.split(crop)
     clipped = cv2.max(cv2.max(b, g), r) >= CLIPPED_LEVEL
-    white = cv2.min(cv2.min(b, g), r) >= CLIPPED_LEVEL  # (an over-exposed ink is no highlight)
-    if not white.any():
-        return NO_HIGHLIGHT
     marker = grid_mask(crop, 1, 0, lut, vector, green_bound)[0] > 0
     ys, xs = np.nonzero(marker)
     if xs.size == 0:
@@ -164,12 +162,11 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
     cx1, cy1 = min(seed[0] + WINDOW_PX + 1, W), min(seed[1] + WINDOW_PX + 1, H)
     if cx1 <= cx0 or cy1 <= cy0:
         return NO_BLOB
-    window = image[cy0:cy1, cx0:cx1]
-    level = (CLIPPED_LEVEL,) * 3
-    if not cv2.countNonZero(cv2.inRange(window, level, (255, 255, 255))):
+    crop = np.ascontiguousarray(image[cy0:cy1, cx0:cx1])
+    white = cv2.inRange(crop, (CLIPPED_LEVEL,) * 3, (255, 255, 255))
+    if not cv2.countNonZero(white):
         return NO_HIGHLIGHT  # (the common case, first and cheaply: no clipped white near)
-    crop = np.ascontiguousarray(window)
-    found = _blob(crop, (seed[0] - cx0, seed[1] - cy0), lut, vector, green_bound)
+    found = _blob(crop, white, (seed[0] - cx0, seed[1] - cy0), lut, vector, green_bound)
     if isinstance(found, str):
         return found
     marker, clipped, core = found

@@ -337,7 +337,7 @@ def fit(image: np.ndarray, v0: np.ndarray, lut: np.ndarray) -> ShadowFit | str:
     if isinstance(cov, str):
         return cov
     if not np.isfinite(v).all():
-        return "the fit's covariance is not finite"
+        return "the fit's vertices are not finite"
     blur = abs(p[8]) + 0.3
     return ShadowFit(v, cov, worst * blur * math.sqrt(2.0 * math.pi))
 
