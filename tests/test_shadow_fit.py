@@ -1,10 +1,12 @@
-"""The marker fitted whole under a cast shadow (``shadow.py``, issue 21): the model's
-derivatives, its solver against scipy's, and kept webcam frames: a shadow the scans refuse
-is found within its uncertainty; an arm or motion blur that looks like one is not taken."""
+"""The marker fitted whole under a cast shadow (``shadow.py``, issue 21): the compiled
+model against its formula, its derivatives, its solver against scipy's, and kept webcam
+frames: a shadow the scans refuse is found within its uncertainty; an arm or motion blur
+that looks like one is not taken."""
 
 import numpy as np
 import pytest
 from scipy.optimize import least_squares
+from scipy.special import ndtr
 
 from services.vertex_extractor import measure, shadow
 from services.vertex_extractor.extractor import ExtractorParams, RhombusExtractor
@@ -19,6 +21,25 @@ TRUE = np.r_[RHOMBUS.ravel(), 0.6, 1.0, 0.05, 0.35, 0.4, 45.0, 0.9]
 def _grid() -> tuple[np.ndarray, np.ndarray]:
     Y, X = np.mgrid[20:81, 10:91].astype(float)
     return X.ravel(), Y.ravel()
+
+
+def test_the_compiled_model_is_the_formula():
+    """``quad_model.model`` (compiled, its far pixels spared) equals
+    b + A · Π Φ(d_i / σ) · (k + (1 − k) Φ(s / soft)) written with scipy's ``ndtr``, at every
+    pixel of the box, for a sharp edge (most pixels far) and a blurred one."""
+    X, Y = _grid()
+    for p in (TRUE, np.r_[RHOMBUS.ravel(), 3.0, *TRUE[9:]]):
+        v, sig = p[:8].reshape(4, 2), abs(p[8]) + 0.3
+        cover = np.ones(X.size)
+        for i in range(4):
+            a, b = v[i], v[(i + 1) % 4]
+            n = np.array([a[1] - b[1], b[0] - a[0]]) / np.hypot(*(b - a))
+            n *= np.sign(n @ (v.mean(0) - a))  # inward
+            cover *= ndtr(((X - a[0]) * n[0] + (Y - a[1]) * n[1]) / sig)
+        k, ang, rho, soft = p[11], p[12], p[13], abs(p[14]) + 0.3
+        lit = ndtr((np.cos(ang) * X + np.sin(ang) * Y - rho) / soft)
+        formula = p[10] + p[9] * cover * (k + (1 - k) * lit)
+        assert np.abs(shadow.model(p, X, Y)[0] - formula).max() < 1e-12
 
 
 def test_the_models_jacobian_is_its_derivative():

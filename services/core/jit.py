@@ -29,7 +29,7 @@ KERNEL_SOURCES = ("core/jit.py", "core/order.py", "core/projection.py",
                   "vertex_extractor/shape.py",
                   "vertex_extractor/scan.py", "vertex_extractor/lines.py",
                   "vertex_extractor/measure.py", "vertex_extractor/profile.py",
-                  "vertex_extractor/covariance.py",
+                  "vertex_extractor/covariance.py", "vertex_extractor/quad_model.py",
                   "vertex_extractor/paper.py", "vertex_extractor/recover.py",
                   "pose_estimator/p4p.py", "pose_estimator/estimate.py")
 
