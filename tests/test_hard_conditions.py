@@ -373,8 +373,13 @@ def test_under_a_highlight_the_joint_fit_starts_from_both_walks():
     once from a first quadrilateral on the box's sides and with the box's clipped pixels
     counted as the blob's: with the column walk's box that was refused ("the fitted edges
     meet outside the image"); with the box of both walks the marker is found, within its
-    reported uncertainty."""
+    reported uncertainty. (Clipped white lies near its vertices, so the highlight's fit then
+    checks it: it moves the left vertex by 1.2 px, to 1.2 px off, and that vertex's reported
+    uncertainty grows to cover the move.)"""
     img, truth = _kept_frame("highlight_7_157")
+    with pytest.MonkeyPatch.context() as m:  # (the joint fit alone, unchecked)
+        m.setattr(measure, "clipped_near", lambda *_: False)
+        _assert_within(RhombusExtractor().extract(img), truth, 1.0)
     ex = RhombusExtractor()
     lut, model = ex.params.colour.lut, ex.params.colour.vector
     x, y, radius = ex._coarse_search(img)[1]  # (the lower blob)
@@ -382,7 +387,7 @@ def test_under_a_highlight_the_joint_fit_starts_from_both_walks():
     *_, box = measure.column_scan(img, sx, sy, lut, model, ex._prm_small)
     row_box = measure._row_scan(img, sx, sy, lut, model, ex._prm_small)[7]
     assert row_box[0] < box[0] - 5  # (x0, x1, y0, y1)
-    _assert_within(ex.extract(img), truth, 1.0)
+    _assert_within(ex.extract(img), truth, 1.5)
 
 
 def test_steep_and_small_markers_are_found():

@@ -95,11 +95,15 @@ Where we depart from the paper, keeping its spirit:
   the rhombus under a cast shadow's straight boundary (``shadow.py``: blurred edges times a
   half-plane's darkening, 15 parameters), and taken only where the fit and the surround
   both show that shadow, under the same shape tests and uncertainty limit
-  (``shadow_model``; 5-300 ms, paid only on such views). Where clipped white touches the
-  blob, the same fit without the shadow, the pixels near the clipped ones left out, from
-  the blob's hull: a glossy print's highlight that hides too much of an edge for the scans
-  (``highlight.py``, ``highlight_model``; 46 ms at the median, up to 0.8 s); with
+  (``shadow_model``; 20 ms at the median, paid only on such views). Where clipped white
+  touches the blob, the same fit without the shadow, the pixels near the clipped ones left
+  out, from the blob's hull: a glossy print's highlight that hides too much of an edge for
+  the scans (``highlight.py``, ``highlight_model``; 20 ms at the median, up to 0.2 s); with
   intrinsics, one edge under the highlight is given by the rhombus's pose.
+- A marker the scans found (cold or tracked) with clipped white near a vertex is checked by
+  that fit started from its vertices: where it moves a vertex by more than a pixel, its
+  vertices are reported instead, or the marker is refused where the fit cannot place that
+  vertex surely either (``_checked_under_highlight``; 21 ms at the median).
 - The covariance reported (``covariance.py``) is that one scaled with the marker's size (the
   errors that matter do not average out along an edge) plus what the profile says about a
   misplaced edge: honest (NEES about 2) on small and large markers, under blur and shadows.
@@ -117,7 +121,7 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Literal
 
 import cv2
@@ -133,6 +137,7 @@ from services.vertex_extractor import (
     measure,
     paper,
     profile,
+    quad_model,
     recover,
     scan,
     shadow,
@@ -282,12 +287,16 @@ class ExtractorParams(BaseModel):
     shadow_model: bool = Field(default=True, description=(
         "last, on a cold search: a marker every other route refused is fitted whole as the "
         "rhombus under a cast shadow's straight boundary, taken only where the fit and its "
-        "surround show that shadow (shadow.py; 5-300 ms a view, paid only on such views)"))
+        "surround show that shadow (shadow.py; 20 ms a view at the median, paid only on "
+        "such views)"))
     highlight_model: bool = Field(default=True, description=(
         "last, on a cold search: a marker every other route refused, with clipped white "
         "on its blob, is fitted whole with the pixels near the clipped ones left out, taken "
-        "only where every edge is seen over a fifth of its length (highlight.py; 46 ms a "
-        "view at the median, up to 0.8 s, paid only on such views)"))
+        "only where every edge is seen over a fifth of its length; and a marker the scans "
+        "found with clipped white near a vertex is checked by that fit, which replaces "
+        "their vertices where it moves one by over 1 px, or refuses the marker where it "
+        "cannot place that vertex either (highlight.py; 20 ms a fit at the median, up to "
+        "0.2 s, paid only on such views)"))
 
 
 _EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING,
@@ -673,9 +682,52 @@ class RhombusExtractor:
                 " px off the others (a shadow's boundary near the vertex?)", tracked), False
         self._seed = (int(stats[measure.SEED_X]), int(stats[measure.SEED_Y]),
                       int(stats[measure.SEED_RADIUS]))
-        return Detection(True, v, float(stats[measure.AREA_RATIO]),
-                         float(stats[measure.RESIDUAL]), "", tracked, (u, d),
-                         covariance.reported(v, cov, offsets, steps)), False
+        det = Detection(True, v, float(stats[measure.AREA_RATIO]),
+                        float(stats[measure.RESIDUAL]), "", tracked, (u, d),
+                        covariance.reported(v, cov, offsets, steps))
+        return self._checked_under_highlight(image, det, prm, test), False
+
+    def _checked_under_highlight(self, image: np.ndarray, det: Detection, prm: np.ndarray,
+                                 test: ShapeTest | None) -> Detection:
+        """A marker the scans found with clipped white near a vertex (within
+        ``highlight.CHECK_NEAR_PX``), checked by the fit of the whole marker under the
+        highlight started from its vertices: where the fit is taken and moves a vertex more
+        than ``highlight.CHECK_APART_PX``, its vertices replace the scans' (a highlight's
+        halo bent an edge's points; each vertex's covariance grown by
+        ``highlight.CHECK_APART_SHARE`` of its move, in quadrature), or, where the fit is
+        itself too uncertain
+        (``highlight.CHECK_MAX_SIGMA_PX``), the marker is refused. A fit not taken leaves the
+        scans' detection as it is."""
+        v = det.vertices_px
+        assert v is not None
+        if not self.params.highlight_model or not measure.clipped_near(
+                image, v, highlight.CHECK_NEAR_PX, highlight.CLIPPED_LEVEL):
+            return det
+        c = self.params.colour
+        centre = (int(v[:, 0].mean() + 0.5), int(v[:, 1].mean() + 0.5))
+        fit = highlight.fit(image, centre, c.lut, c.vector, c.green_bound, start_px=v)
+        if isinstance(fit, str):
+            return det
+        apart = np.linalg.norm(fit.vertices_px - v, axis=1)
+        k = int(np.argmax(apart))
+        if apart[k] <= highlight.CHECK_APART_PX:
+            return det
+        off = (f"the scans put the {profile.VERTEX_NAMES[k]} vertex {apart[k]:.1f} px from "
+               "where the marker fitted whole under a clipped highlight does")
+        if (sigma := recover.largest_sigma_px(fit.cov_px2)) > highlight.CHECK_MAX_SIGMA_PX:
+            self._seed = None
+            return _miss(f"{off}, and that fit is uncertain ({sigma:.2f} px, 1 sigma; at most "
+                         f"{highlight.CHECK_MAX_SIGMA_PX} px): a vertex under the highlight",
+                         det.tracked)
+        # neither is the truth: each vertex's covariance grows by a share of how far the
+        # scans put it (the fit's own understates it where they disagree)
+        grown = fit.cov_px2 + (highlight.CHECK_APART_SHARE * apart)[:, None, None] ** 2 \
+            * np.eye(2)
+        fitted = self._as_detection(image, replace(fit, cov_px2=grown), prm, test)
+        if isinstance(fitted, str):
+            self._seed = None
+            return _miss(f"{off}, and that fit is refused: {fitted}", det.tracked)
+        return replace(fitted, tracked=det.tracked)
 
     def _paper(self, image: np.ndarray, seed: tuple[int, int, int], tracked: bool
                ) -> Detection:
@@ -921,3 +973,4 @@ def warm_up(params: ExtractorParams | None = None) -> None:
     profile.warm_up()
     covariance.warm_up()
     recover.warm_up()
+    quad_model.model(np.ones(quad_model.N_PARAMS), np.zeros(1), np.zeros(1), True)

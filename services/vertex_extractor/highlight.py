@@ -35,12 +35,18 @@ reported sigma: ``SIGMA_SCALE`` times the fit's, with a floor ``SIGMA_FLOOR_PX``
 their edges, and the pixels next to the clipped ones are not quite clean (demosaicing,
 JPEG's chroma).
 
-Tuned on seeds 2024, 7 and 11 (``MAX_SIGMA_PX`` on seeds 200-209); held out on seeds 31-35
-and other photographs. Pure numpy and
-OpenCV: 46 ms a view at the median, 0.17 s at the 95th percentile, 0.34 s at most (a fit may
-take up to ``MAX_EVALUATIONS``: a start far off crawls in); with intrinsics, the pose's fits
-too, 62 ms, 0.34 s and 0.76 s. Only views every other route refused, with clipped white on the
-blob, pay it.
+The same fit checks a marker the scans *found* with clipped white within ``CHECK_NEAR_PX``
+of a vertex (``start_px``: started from their vertices, with ``CHECK_START_BLUR_PX``; the
+extractor's ``_checked_under_highlight`` judges it against ``CHECK_APART_PX`` and
+``CHECK_MAX_SIGMA_PX``): the halo beside a clipped core bends the scans' edge points.
+
+Tuned on seeds 2024, 7 and 11 (``MAX_SIGMA_PX`` and the check on seeds 200-209); held out on
+seeds 31-35 and other photographs. numpy and OpenCV, the model compiled (``quad_model.py``):
+20 ms a fit at the median, 62 ms at the 95th percentile, 0.16 s at most (a fit may take up
+to ``MAX_EVALUATIONS``: a start far off crawls in); with intrinsics, the pose's fits too,
+24 ms, 0.13 s and 0.22 s; a check 21 ms, 43 ms and 75 ms. Only views every other route
+refused, with clipped white on the blob, and found markers with clipped white near a
+vertex pay it.
 """
 
 from __future__ import annotations
@@ -77,6 +83,13 @@ SIGMA_FLOOR_PX = 0.15    # px
 MAX_SIGMA_PX = 0.5       # a vertex more uncertain (1 sigma, px) refuses the free fit: more
                          # were wrong there (seeds 200-209: 7 of 348 fits up to 1.2 px)
 START_BLUR_PX = 2.5      # the blur the fit starts from: wide, so that edges far off pull
+CHECK_START_BLUR_PX = 1.5  # ... from the scans' vertices (a check): they are near
+CHECK_NEAR_PX = 25       # a found marker with clipped white this near a vertex is checked (px)
+CHECK_APART_PX = 1.0     # the check's fit moving a vertex further than this (px) overrules
+CHECK_MAX_SIGMA_PX = 0.7  # ... the scans: its vertices taken if none is more uncertain
+                         # (reported, 1 sigma, px) than this; the marker refused otherwise
+CHECK_APART_SHARE = 0.5  # a taken check's vertex sigma grows by this share of its move (px):
+                         # the fit's alone had 19 of 137 more than 3 sigmas off, this 5
 MAX_EVALUATIONS = 80     # the fit's budget
 
 #: not tried: the extractor's own refusal says enough
@@ -151,12 +164,15 @@ def _blob(crop: np.ndarray, white: np.ndarray, seed: tuple[int, int], lut: np.nd
 
 def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.ndarray,
         green_bound: np.ndarray, camera: CameraModel | None = None,
-        model_m: np.ndarray | None = None) -> HighlightFit | str:
+        model_m: np.ndarray | None = None, start_px: np.ndarray | None = None
+        ) -> HighlightFit | str:
     """The marker at ``seed`` (x, y px) in a BGR uint8 image, under a clipped highlight,
     fitted whole; or why not (a string). ``lut``, ``vector``, ``green_bound``: the colour
     model's (``colour.ColourModel``). With the ``camera`` and the rhombus ``model_m`` (4, 3)
     m (left, top, right, bottom), a marker with one edge under the highlight is fitted as
-    the rhombus's pose, its other three edges fixing it (``_fit_pose``)."""
+    the rhombus's pose, its other three edges fixing it (``_fit_pose``). ``start_px``: the
+    scans' vertices (4, 2) px, left, top, right, bottom, to start from, as a check of them
+    (its caller judges the uncertainty: no ``MAX_SIGMA_PX``); else the blob's hull."""
     H, W = image.shape[:2]
     cx0, cy0 = max(seed[0] - WINDOW_PX, 0), max(seed[1] - WINDOW_PX, 0)
     cx1, cy1 = min(seed[0] + WINDOW_PX + 1, W), min(seed[1] + WINDOW_PX + 1, H)
@@ -170,10 +186,13 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
     if isinstance(found, str):
         return found
     marker, clipped, core = found
-    ys, xs = np.nonzero(marker | core)  # (a core over a vertex: the hull reaches it)
-    v0 = extreme_points(np.column_stack([xs, ys]))
-    if v0 is None:
-        return "the blob is too thin for a quadrilateral"
+    if start_px is None:
+        ys, xs = np.nonzero(marker | core)  # (a core over a vertex: the hull reaches it)
+        v0 = extreme_points(np.column_stack([xs, ys]))
+        if v0 is None:
+            return "the blob is too thin for a quadrilateral"
+    else:
+        v0 = np.asarray(start_px, float) - [cx0, cy0]
     x0, y0 = (max(int(z), 0) for z in np.floor(v0.min(0) - MARGIN_PX))
     x1 = min(int(np.ceil(v0[:, 0].max() + MARGIN_PX)), crop.shape[1] - 1)
     y1 = min(int(np.ceil(v0[:, 1].max() + MARGIN_PX)), crop.shape[0] - 1)
@@ -194,7 +213,8 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
         return "too little surround around the marker"
     b0 = float(np.median(surround))
     f_scale = max(1.5 * float(np.median(np.abs(surround - b0))), 0.5)
-    p0 = np.array([*v0.ravel(), START_BLUR_PX - 0.3, float(np.median(S[ink])) - b0, b0])
+    blur0 = START_BLUR_PX if start_px is None else CHECK_START_BLUR_PX
+    p0 = np.array([*v0.ravel(), blur0 - 0.3, float(np.median(S[ink])) - b0, b0])
 
     def residual(p: np.ndarray, jac: bool) -> tuple[np.ndarray, np.ndarray | None]:
         f, J = shadow.model(np.r_[p, 1.0, 0.0, 0.0, 0.0], x, y, jac)  # k = 1: no shadow
@@ -235,7 +255,7 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
     if isinstance(cov, str):
         return cov
     sigma = math.sqrt(float(cov[:, 0, 0].max()))
-    if to_vertices is None and sigma > MAX_SIGMA_PX:
+    if to_vertices is None and start_px is None and sigma > MAX_SIGMA_PX:
         return (f"a vertex's uncertainty {sigma:.2f} px is over {MAX_SIGMA_PX} px (extrapolated "
                 f"under the highlight)")
     return HighlightFit(v + corner, cov[order], worst * blur * math.sqrt(2.0 * math.pi))
