@@ -378,7 +378,7 @@ def test_under_a_highlight_the_joint_fit_starts_from_both_walks():
     uncertainty grows to cover the move.)"""
     img, truth = _kept_frame("highlight_7_157")
     with pytest.MonkeyPatch.context() as m:  # (the joint fit alone, unchecked)
-        m.setattr(measure, "clipped_near", lambda *_: False)
+        m.setattr(measure, "white_near", lambda *_: False)
         _assert_within(RhombusExtractor().extract(img), truth, 1.0)
     ex = RhombusExtractor()
     lut, model = ex.params.colour.lut, ex.params.colour.vector

@@ -185,7 +185,7 @@ def test_a_vertex_extrapolated_far_under_the_highlight_is_refused_not_taken_wron
 def _unchecked(monkeypatch: pytest.MonkeyPatch, image: np.ndarray) -> Detection:
     """The extraction without the check of found markers under a highlight."""
     with monkeypatch.context() as m:
-        m.setattr(measure, "clipped_near", lambda *_: False)
+        m.setattr(measure, "white_near", lambda *_: False)
         return RhombusExtractor().extract(image)
 
 
@@ -222,9 +222,9 @@ def test_a_found_marker_without_clipped_white_near_it_is_not_checked(
         monkeypatch: pytest.MonkeyPatch):
     """The check costs a fit only where clipped white lies near a vertex: a marker on a
     grey wall with no highlight is never fitted."""
-    image = _glossy((0.0, 0.0), 0.0, 10.0)
+    image = _glossy((0.0, 0.0), 0.0, 10.0)  # (read-only, as the kernels are compiled for)
     monkeypatch.setattr(highlight, "fit", lambda *_a, **_k: pytest.fail("fitted"))
-    assert measure.clipped_near(image, RHOMBUS, highlight.CHECK_NEAR_PX,
+    assert measure.white_near(image, RHOMBUS, highlight.CHECK_NEAR_PX,
                                 highlight.CLIPPED_LEVEL) is False
     _assert_within(RhombusExtractor().extract(image), RHOMBUS, 0.3)
 

@@ -102,8 +102,8 @@ Where we depart from the paper, keeping its spirit:
   intrinsics, one edge under the highlight is given by the rhombus's pose.
 - A marker the scans found (cold or tracked) with clipped white near a vertex is checked by
   that fit started from its vertices: where it moves a vertex by more than a pixel, its
-  vertices are reported instead, or the marker is refused where the fit cannot place that
-  vertex surely either (``_checked_under_highlight``; 21 ms at the median).
+  vertices are reported instead, or the marker is refused where the fit is unsure of any
+  vertex (``_checked_under_highlight``; 21 ms at the median).
 - The covariance reported (``covariance.py``) is that one scaled with the marker's size (the
   errors that matter do not average out along an edge) plus what the profile says about a
   misplaced edge: honest (NEES about 2) on small and large markers, under blur and shadows.
@@ -294,9 +294,9 @@ class ExtractorParams(BaseModel):
         "on its blob, is fitted whole with the pixels near the clipped ones left out, taken "
         "only where every edge is seen over a fifth of its length; and a marker the scans "
         "found with clipped white near a vertex is checked by that fit, which replaces "
-        "their vertices where it moves one by over 1 px, or refuses the marker where it "
-        "cannot place that vertex either (highlight.py; 20 ms a fit at the median, up to "
-        "0.2 s, paid only on such views)"))
+        "their vertices where it moves one by over 1 px, or refuses the marker where it is "
+        "unsure of any vertex (highlight.py; 20 ms a fit at the median, up to 0.2 s, paid "
+        "only on such views)"))
 
 
 _EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING,
@@ -694,13 +694,16 @@ class RhombusExtractor:
         highlight started from its vertices: where the fit is taken and moves a vertex more
         than ``highlight.CHECK_APART_PX``, its vertices replace the scans' (a highlight's
         halo bent an edge's points; each vertex's covariance grown by
-        ``highlight.CHECK_APART_SHARE`` of its move, in quadrature), or, where the fit is
-        itself too uncertain
-        (``highlight.CHECK_MAX_SIGMA_PX``), the marker is refused. A fit not taken leaves the
-        scans' detection as it is."""
+        ``highlight.CHECK_APART_SHARE`` of its move, in quadrature; ``residual_px`` then the
+        fit's edge bands', as for the fallback fits, and no edge points), or the marker is
+        refused: where the fit is unsure of any vertex (``highlight.CHECK_MAX_SIGMA_PX``), or
+        where its grown covariance or its quadrilateral fails the tests any detection passes
+        (a cold try then goes on to the fits from the blob's hull; a tracked one to the cold
+        search, which checks the marker again). A fit not taken leaves the scans' detection
+        as it is."""
         v = det.vertices_px
         assert v is not None
-        if not self.params.highlight_model or not measure.clipped_near(
+        if not self.params.highlight_model or not measure.white_near(
                 image, v, highlight.CHECK_NEAR_PX, highlight.CLIPPED_LEVEL):
             return det
         c = self.params.colour

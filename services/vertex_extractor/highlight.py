@@ -173,7 +173,8 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
     m (left, top, right, bottom), a marker with one edge under the highlight is fitted as
     the rhombus's pose, its other three edges fixing it (``_fit_pose``). ``start_px``: the
     scans' vertices (4, 2) px, left, top, right, bottom, to start from, as a check of them
-    (its caller judges the uncertainty: no ``MAX_SIGMA_PX``); else the blob's hull."""
+    (its caller judges the uncertainty: no ``MAX_SIGMA_PX``; the extractor passes no camera:
+    no pose fit; a box over ``shadow.MAX_BOX_PX`` is not checked); else the blob's hull."""
     H, W = image.shape[:2]
     cx0, cy0 = max(seed[0] - WINDOW_PX, 0), max(seed[1] - WINDOW_PX, 0)
     cx1, cy1 = min(seed[0] + WINDOW_PX + 1, W), min(seed[1] + WINDOW_PX + 1, H)

@@ -402,10 +402,11 @@ def _clipped(img, box):  # type: ignore[no-untyped-def]
 
 
 @njit()
-def clipped_near(img: np.ndarray, v: np.ndarray, radius: int, level: int) -> bool:
-    """Is there clipped white (every channel at ``level`` or more) within ``radius`` px (a
-    square, every second row and column) of a vertex of v (4, 2) px? A few microseconds:
-    whether a found marker is checked under a highlight (``highlight.CHECK_NEAR_PX``)."""
+def white_near(img: np.ndarray, v: np.ndarray, radius: int, level: int) -> bool:
+    """Is there white (every channel at ``level`` or more: a highlight's clipped core, as
+    ``highlight.py`` calls it) within ``radius`` px (a square, every second row and column)
+    of a vertex of v (4, 2) px? A few microseconds: whether a found marker is checked under a
+    highlight (``highlight.CHECK_NEAR_PX``). (``_clipped`` counts such pixels in a box.)"""
     H, W = img.shape[0], img.shape[1]
     for k in range(v.shape[0]):
         if not (math.isfinite(v[k, 0]) and math.isfinite(v[k, 1])):

@@ -81,9 +81,9 @@ class ShadowFit:
     residual_px: float
 
 
-def _edges(v: np.ndarray) -> list[tuple[np.ndarray, float, float]]:
+def _edges(v: np.ndarray) -> list[tuple[np.ndarray, float]]:
     """Each edge i (v[i] to v[i+1]) of the quadrilateral v (4, 2) px: its inward unit
-    normal, offset and the sign that turns the edge's left normal inward."""
+    normal and offset (as ``quad_model.model`` computes them per fit evaluation)."""
     c = v.mean(0)
     out = []
     for i in range(4):
@@ -91,7 +91,7 @@ def _edges(v: np.ndarray) -> list[tuple[np.ndarray, float, float]]:
         t = b - a
         n = np.array([-t[1], t[0]]) / max(float(np.hypot(*t)), 1e-9)
         sign = 1.0 if (c - a) @ n >= 0 else -1.0
-        out.append((sign * n, float(sign * n @ a), sign))
+        out.append((sign * n, float(sign * n @ a)))
     return out
 
 
@@ -163,7 +163,7 @@ def _split(S: np.ndarray, X: np.ndarray, Y: np.ndarray, v: np.ndarray
     lit side's normal), ρ (px), dark over lit level and lit level; None without enough
     interior."""
     inside = np.ones(S.shape, bool)
-    for n, off, _ in _edges(v):
+    for n, off in _edges(v):
         inside &= (n[0] * X + n[1] * Y - off) > 1.0
     s, x, y = S[inside], X[inside], Y[inside]
     N = s.size
@@ -211,7 +211,7 @@ def surround_ratio(image: np.ndarray, lut: np.ndarray, v: np.ndarray, ang: float
         qi = np.rint(q).astype(int)
         ok &= (qi[:, 0] >= 0) & (qi[:, 0] < W) & (qi[:, 1] >= 0) & (qi[:, 1] < H)
         inside = np.ones(a.size, bool)
-        for nn, off, _ in edges:
+        for nn, off in edges:
             inside &= q @ nn - off >= -2.0
         ok &= ~inside
     if not ok.any():
@@ -301,7 +301,7 @@ def band_rms(v: np.ndarray, x: np.ndarray, y: np.ndarray, r: np.ndarray, level: 
     within 2.5 px of an edge of the quadrilateral v (4, 2), 3 px clear of its ends), and the
     first edge over ``limit`` (-1: none); edge ``unseen`` is not tested."""
     worst = 0.0
-    for i, (n, off, _) in enumerate(_edges(v)):
+    for i, (n, off) in enumerate(_edges(v)):
         if i == unseen:
             continue
         a, c = v[i], v[(i + 1) % 4]
