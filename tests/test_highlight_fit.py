@@ -182,6 +182,45 @@ def test_a_vertex_extrapolated_far_under_the_highlight_is_refused_not_taken_wron
     assert wrong.found and np.linalg.norm(wrong.vertices_px - truth, axis=1).max() > 3.0
 
 
+def test_with_intrinsics_a_vertex_far_under_the_highlight_is_given_by_the_known_rhombus():
+    """The same frame (seed 204) with intrinsics: the free fit refused for its extrapolated
+    bottom vertex is fitted again as the deployment's rhombus, the four edges' seen parts
+    fixing its pose and so that vertex: within 1 px and 3 reported sigmas."""
+    image, truth, camera = _kept("highlight_204_99")
+    ex = RhombusExtractor()
+    ex.use_intrinsics(camera)
+    _assert_within(ex.extract(image), truth, 1.0)
+
+
+def test_with_intrinsics_two_edges_mostly_under_the_highlight_are_given_by_the_known_rhombus():
+    """A kept webcam frame (seed 2024) whose highlight covers the bottom vertex, the whole
+    lower left edge and most of the lower right one: without intrinsics refused; with them
+    the pose from the edges seen gives the marker within 0.2 px and 3 sigmas."""
+    image, truth, camera = _kept("highlight_78")
+    det = RhombusExtractor().extract(image)
+    assert not det.found and "fitted whole under a clipped highlight, refused: the lower " \
+        "left edge is under the highlight over 100% of its length" in det.reason, det.reason
+    ex = RhombusExtractor()
+    ex.use_intrinsics(camera)
+    _assert_within(ex.extract(image), truth, 0.2)
+
+
+def test_a_pose_too_uncertain_under_the_highlight_is_refused_not_taken_wrong(
+        monkeypatch: pytest.MonkeyPatch):
+    """A kept webcam frame (seed 202) whose left vertex and most of the marker lie under the
+    highlight: as the rhombus's pose the left vertex comes out 3.2 px off at a reported
+    1.1 px. ``MAX_POSE_SIGMA_PX`` (0.8 px) refuses it, saying why."""
+    image, truth, camera = _kept("highlight_202_177")
+    ex = RhombusExtractor()
+    ex.use_intrinsics(camera)
+    det = ex.extract(image)
+    assert not det.found and det.reason.endswith(
+        "as the rhombus's pose: a vertex's uncertainty 1.11 px is over 0.8 px"), det.reason
+    monkeypatch.setattr(highlight, "MAX_POSE_SIGMA_PX", 99.0)
+    wrong = ex.extract(image)
+    assert wrong.found and np.linalg.norm(wrong.vertices_px - truth, axis=1).max() > 3.0
+
+
 def _unchecked(monkeypatch: pytest.MonkeyPatch, image: np.ndarray) -> Detection:
     """The extraction without the check of found markers under a highlight."""
     with monkeypatch.context() as m:

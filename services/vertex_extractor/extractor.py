@@ -99,7 +99,8 @@ Where we depart from the paper, keeping its spirit:
   touches the blob, the same fit without the shadow, the pixels near the clipped ones left
   out, from the blob's hull: a glossy print's highlight that hides too much of an edge for
   the scans (``highlight.py``, ``highlight_model``; 20 ms at the median, up to 0.2 s); with
-  intrinsics, one edge under the highlight is given by the rhombus's pose.
+  intrinsics, an edge under the highlight or a vertex too uncertain is given by the
+  rhombus's pose (65 ms at the median, up to 0.8 s).
 - A marker the scans found (cold or tracked) with clipped white near a vertex is checked by
   that fit started from its vertices: where it moves a vertex by more than a pixel, its
   vertices are reported instead, or the marker is refused where the fit is unsure of any
@@ -292,11 +293,13 @@ class ExtractorParams(BaseModel):
     highlight_model: bool = Field(default=True, description=(
         "last, on a cold search: a marker every other route refused, with clipped white "
         "on its blob, is fitted whole with the pixels near the clipped ones left out, taken "
-        "only where every edge is seen over a fifth of its length; and a marker the scans "
+        "only where every edge is seen over a fifth of its length and no vertex is too "
+        "uncertain (with intrinsics, else as the rhombus's pose that the edges seen fix); "
+        "and a marker the scans "
         "found with clipped white near a vertex is checked by that fit, which replaces "
         "their vertices where it moves one by over 1 px, or refuses the marker where it is "
-        "unsure of any vertex (highlight.py; 20 ms a fit at the median, up to 0.2 s, paid "
-        "only on such views)"))
+        "unsure of any vertex (highlight.py; 20 ms a fit at the median, up to 0.2 s, with "
+        "intrinsics and the pose 65 ms, up to 0.8 s; paid only on such views)"))
 
 
 _EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING,

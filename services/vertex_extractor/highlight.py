@@ -18,23 +18,27 @@ hull's diameter and the points farthest from it on each side). It is tried only 
 clipped white (every channel clipped) lies on the blob or within ``WHITE_NEAR_PX`` of it:
 a highlight's core, not an over-exposed ink.
 
-With the camera's intrinsics, a marker with one edge under the highlight and the other three
-seen over ``MIN_POSE_SUPPORT`` of their length is fitted again as the deployment's rhombus
-seen by the camera: its pose (6 parameters) instead of the vertices, started from the poses
-that put it on the three seen edges (``recover.p3l``) and from IPPE, the best
-``POSE_STARTS`` fitted; where another pose fits within ``POSE_TIE`` of the best cost with a
-vertex more than ``POSE_APART_PX`` away, the three edges do not tell (refused).
+A free fit is taken only if every edge is seen over at least ``MIN_SUPPORT`` of its length
+(an edge under the highlight from end to end is not measured), every edge's band fits within
+``MAX_BAND_RMS`` of the marker's level, the edges' fitted blur is at most ``MAX_BLUR_PX``
+(more: not a clean step), no vertex's reported sigma is over ``MAX_SIGMA_PX`` (a vertex
+extrapolated far under the highlight), and the fit converged; then the tests any detection
+passes. Its vertices' reported sigma: ``SIGMA_SCALE`` times the fit's, with a floor
+``SIGMA_FLOOR_PX`` (isotropic, px): the vertices a highlight hides are extrapolated from the
+visible parts of their edges, and the pixels next to the clipped ones are not quite clean
+(demosaicing, JPEG's chroma).
 
-A fit is taken only if every edge is seen over at least ``MIN_SUPPORT`` of its length (an
-edge under the highlight from end to end is not measured: refused, but for the pose's one
-hidden edge), every edge's band fits within ``MAX_BAND_RMS`` of the marker's level, the
-edges' fitted blur is at most ``MAX_BLUR_PX`` (more: not a clean step), no vertex's
-reported sigma is over ``MAX_SIGMA_PX`` (the free fit's: a vertex extrapolated far under
-the highlight), and the fit converged; then the tests any detection passes. Its vertices'
-reported sigma: ``SIGMA_SCALE`` times the fit's, with a floor ``SIGMA_FLOOR_PX``
-(isotropic, px): the vertices a highlight hides are extrapolated from the visible parts of
-their edges, and the pixels next to the clipped ones are not quite clean (demosaicing,
-JPEG's chroma).
+With the camera's intrinsics, a free fit refused for an edge under the highlight or for a
+vertex's uncertainty is fitted again as the deployment's rhombus seen by the camera: its
+pose (6 parameters) instead of the vertices, whatever the other edges show, started from the
+poses that put it on the three edges seen best (``recover.p3l``) and from IPPE, the best
+``POSE_STARTS`` fitted. Where another pose fits within ``POSE_TIE`` of the best cost with a
+vertex more than ``POSE_APART_PX`` away, the edges seen do not tell (refused); the edges'
+bands (but a hidden one's) and the blur are tested as above, and a vertex's sigma must be at
+most ``MAX_POSE_SIGMA_PX``. The known shape and camera fix what the highlight hides: with
+intrinsics the highlight's views are found on 97-98 % (92-93 % with the pose for one hidden
+edge only, beside three seen over 30 % of their length), about 1 % of the pose's detections
+over 2 px off (docs/measured.md).
 
 The same fit checks a marker the scans *found* with clipped white within ``CHECK_NEAR_PX``
 of a vertex (``start_px``: started from their vertices, with ``CHECK_START_BLUR_PX``; the
@@ -44,10 +48,10 @@ extractor's ``_checked_under_highlight`` judges it against ``CHECK_APART_PX`` an
 Tuned on seeds 2024, 7 and 11 (``MAX_SIGMA_PX`` and the check on seeds 200-209); held out on
 seeds 31-35 and other photographs. numpy and OpenCV, the model compiled (``quad_model.py``):
 20 ms a fit at the median, 62 ms at the 95th percentile, 0.16 s at most (a fit may take up
-to ``MAX_EVALUATIONS``: a start far off crawls in); with intrinsics, the pose's fits too,
-24 ms, 0.13 s and 0.22 s; a check 21 ms, 43 ms and 75 ms. Only views every other route
-refused, with clipped white on the blob, and found markers with clipped white near a
-vertex pay it.
+to ``MAX_EVALUATIONS``: a start far off crawls in); with intrinsics, the free fit and the
+pose's together 65 ms, 0.21 s and 0.84 s; a check 21 ms, 43 ms and 75 ms. Only views
+every other route refused, with clipped white on the blob, and found markers with clipped
+white near a vertex pay it.
 """
 
 from __future__ import annotations
@@ -72,8 +76,7 @@ WHITE_NEAR_PX = 20       # clipped white this near the blob (px) makes it a high
 MASK_PX = 2              # pixels this near a clipped one are left out of the fit (px)
 MARGIN_PX = 14           # the fitted box: the start's plus this (px)
 MIN_MARKER_PX = 20       # the blob's unclipped marker pixels, at least
-MIN_SUPPORT = 0.2        # every edge's share seen (not masked), at least
-MIN_POSE_SUPPORT = 0.3   # with intrinsics, one edge may be hidden if the others are seen so
+MIN_SUPPORT = 0.2        # every edge's share seen (not masked), at least (but as a pose)
 POSE_STARTS = 3          # the poses fitted, from the starts that fit best
 POSE_TIE = 0.005         # another pose whose cost is within this share of the best ...
 POSE_APART_PX = 1.0      # ... with a vertex further than this from the best's: ambiguous
@@ -83,6 +86,7 @@ SIGMA_SCALE = 5.0        # the fit's vertex sigma understates the error (see the
 SIGMA_FLOOR_PX = 0.15    # px
 MAX_SIGMA_PX = 0.5       # a vertex more uncertain (1 sigma, px) refuses the free fit: more
                          # were wrong there (seeds 200-209: 7 of 348 fits up to 1.2 px)
+MAX_POSE_SIGMA_PX = 0.8  # ... a pose's (with intrinsics): 3 of the 9 wrong of 628 over it
 START_BLUR_PX = 2.5      # the blur the fit starts from: wide, so that edges far off pull
 CHECK_START_BLUR_PX = 1.5  # ... from the scans' vertices (a check): they are near
 CHECK_NEAR_PX = 25       # a found marker with clipped white this near a vertex is checked (px)
@@ -170,11 +174,12 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
     """The marker at ``seed`` (x, y px) in a BGR uint8 image, under a clipped highlight,
     fitted whole; or why not (a string). ``lut``, ``vector``, ``green_bound``: the colour
     model's (``colour.ColourModel``). With the ``camera`` and the rhombus ``model_m`` (4, 3)
-    m (left, top, right, bottom), a marker with one edge under the highlight is fitted as
-    the rhombus's pose, its other three edges fixing it (``_fit_pose``). ``start_px``: the
-    scans' vertices (4, 2) px, left, top, right, bottom, to start from, as a check of them
-    (its caller judges the uncertainty: no ``MAX_SIGMA_PX``; the extractor passes no camera:
-    no pose fit; a box over ``shadow.MAX_BOX_PX`` is not checked); else the blob's hull."""
+    m (left, top, right, bottom), a free fit refused for an edge under the highlight or for
+    a vertex's uncertainty over ``MAX_SIGMA_PX`` is fitted again as the rhombus's pose,
+    what its edges show fixing it (``_fit_pose``). ``start_px``: the scans' vertices (4, 2)
+    px, left, top, right, bottom, to start from, as a check of them (its caller judges the
+    uncertainty: no ``MAX_SIGMA_PX`` and no pose fit; a box over ``shadow.MAX_BOX_PX`` is
+    not checked); else the blob's hull."""
     H, W = image.shape[:2]
     cx0, cy0 = max(seed[0] - WINDOW_PX, 0), max(seed[1] - WINDOW_PX, 0)
     cx1, cy1 = min(seed[0] + WINDOW_PX + 1, W), min(seed[1] + WINDOW_PX + 1, H)
@@ -242,32 +247,46 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
         return f"the edges' fitted blur {blur:.1f} px is over {MAX_BLUR_PX} px (not a clean step)"
     seen_share = _seen_share(v, seen, x0, y0)
     corner = np.array([cx0, cy0], float)  # (the crop's, in the image)
-    to_vertices: np.ndarray | None = None  # (the vertices are the first 8 parameters)
-    unseen = -1  # (the edge the pose gives)
-    if seen_share[edge := int(np.argmin(seen_share))] < MIN_SUPPORT:
-        hidden = (f"the {EDGE_NAMES[edge]} edge is under the highlight over "
-                  f"{1 - seen_share[edge]:.0%} of its length (at most {1 - MIN_SUPPORT:.0%})")
-        if camera is None or model_m is None or np.sort(seen_share)[1] < MIN_POSE_SUPPORT:
-            return hidden
-        posed = _fit_pose(residual, p, v, edge, camera, model_m, corner, f_scale)
-        if isinstance(posed, str):
-            return f"{hidden}; as the rhombus's pose: {posed}"
-        p, r, J, v, to_vertices = posed
-        order, unseen = np.arange(4), edge
-        if (blur := abs(p[-3]) + 0.3) > MAX_BLUR_PX:
-            return f"the pose's fitted blur {blur:.1f} px is over {MAX_BLUR_PX} px"
-    worst, edge = shadow.band_rms(v, x, y, r, float(p[-2]), MAX_BAND_RMS, unseen)
+    least = int(np.argmin(seen_share))
+    if seen_share[least] < MIN_SUPPORT:
+        free: np.ndarray | str = (
+            f"the {EDGE_NAMES[least]} edge is under the highlight over "
+            f"{1 - seen_share[least]:.0%} of its length (at most {1 - MIN_SUPPORT:.0%})")
+    else:
+        worst, edge = shadow.band_rms(v, x, y, r, float(p[-2]), MAX_BAND_RMS)
+        if edge >= 0:
+            return (f"the {EDGE_NAMES[edge]} edge does not fit the marker (band RMS "
+                    f"{worst:.3f} of its level)")
+        free = shadow.vertex_covariance(r, J, f_scale, SIGMA_SCALE, SIGMA_FLOOR_PX)
+        if isinstance(free, str):
+            return free
+        sigma = math.sqrt(float(free[:, 0, 0].max()))
+        if start_px is None and sigma > MAX_SIGMA_PX:
+            free = (f"a vertex's uncertainty {sigma:.2f} px is over {MAX_SIGMA_PX} px "
+                    f"(extrapolated under the highlight)")
+    if not isinstance(free, str):
+        return HighlightFit(v + corner, free[order], worst * blur * math.sqrt(2.0 * math.pi))
+    if camera is None or model_m is None or start_px is not None:
+        return free
+    posed = _fit_pose(residual, p, v, least, camera, model_m, corner, f_scale)
+    if isinstance(posed, str):
+        return f"{free}; as the rhombus's pose: {posed}"
+    p, r, J, v, to_vertices = posed
+    hidden = least if seen_share[least] < MIN_SUPPORT else -1
+    if (blur := abs(p[-3]) + 0.3) > MAX_BLUR_PX:
+        return (f"{free}; as the rhombus's pose: its fitted blur {blur:.1f} px is over "
+                f"{MAX_BLUR_PX} px")
+    worst, edge = shadow.band_rms(v, x, y, r, float(p[-2]), MAX_BAND_RMS, hidden)
     if edge >= 0:
-        return (f"the {EDGE_NAMES[edge]} edge does not fit the marker (band RMS {worst:.3f} "
-                f"of its level)")
+        return (f"{free}; as the rhombus's pose: the {EDGE_NAMES[edge]} edge does not fit the "
+                f"marker (band RMS {worst:.3f} of its level)")
     cov = shadow.vertex_covariance(r, J, f_scale, SIGMA_SCALE, SIGMA_FLOOR_PX, to_vertices)
     if isinstance(cov, str):
-        return cov
-    sigma = math.sqrt(float(cov[:, 0, 0].max()))
-    if to_vertices is None and start_px is None and sigma > MAX_SIGMA_PX:
-        return (f"a vertex's uncertainty {sigma:.2f} px is over {MAX_SIGMA_PX} px (extrapolated "
-                f"under the highlight)")
-    return HighlightFit(v + corner, cov[order], worst * blur * math.sqrt(2.0 * math.pi))
+        return f"{free}; as the rhombus's pose: {cov}"
+    if (sigma := math.sqrt(float(cov[:, 0, 0].max()))) > MAX_POSE_SIGMA_PX:
+        return (f"{free}; as the rhombus's pose: a vertex's uncertainty {sigma:.2f} px is over "
+                f"{MAX_POSE_SIGMA_PX} px")
+    return HighlightFit(v + corner, cov, worst * blur * math.sqrt(2.0 * math.pi))
 
 
 def _fit_pose(residual: Callable[[np.ndarray, bool], tuple[np.ndarray, np.ndarray | None]],
@@ -277,8 +296,8 @@ def _fit_pose(residual: Callable[[np.ndarray, bool], tuple[np.ndarray, np.ndarra
     """The marker fitted (``residual`` of the 11 parameters p: vertices px in the crop,
     blur, level, floor) as the rhombus ``model_m`` seen by ``camera``: 9 parameters (the
     rotation vector, the translation (m), blur, level, floor), started from the poses that
-    put its edges on the three seen edges of the free fit v (left, top, right, bottom; edge
-    ``hidden`` not seen: ``recover.p3l``) and from IPPE on v. The parameters, residual,
+    put its edges on three edges of the free fit v (left, top, right, bottom; all but
+    ``hidden``, the one seen least: ``recover.p3l``) and from IPPE on v. The parameters, residual,
     Jacobian, vertices (4, 2) px in the crop and their derivatives by the pose (8, 6); or why
     not."""
     K, dist = camera.K, camera.dist
@@ -316,7 +335,7 @@ def _fit_pose(residual: Callable[[np.ndarray, bool], tuple[np.ndarray, np.ndarra
         if solved is not None and np.isfinite(vertices(solved[0])[0]).all():
             fits.append((cost(solved[1]), len(fits), solved))
     if not fits:
-        return ("no pose puts the rhombus on its three seen edges" if not first else
+        return ("no pose puts the rhombus on its three edges seen best" if not first else
                 f"the fit did not converge in {MAX_EVALUATIONS} evaluations")
     fits.sort(key=lambda f: f[:2])
     q, r, J = fits[0][2]
@@ -324,7 +343,7 @@ def _fit_pose(residual: Callable[[np.ndarray, bool], tuple[np.ndarray, np.ndarra
     for c, _, other in fits[1:]:
         apart = float(np.linalg.norm(vertices(other[0])[0] - w, axis=1).max())
         if c <= (1.0 + POSE_TIE) * fits[0][0] and apart > POSE_APART_PX:
-            return (f"two poses fit its three seen edges alike (costs {c / fits[0][0] - 1:.1%} "
+            return (f"two poses fit its seen edges alike (costs {c / fits[0][0] - 1:.1%} "
                     f"apart), their vertices {apart:.1f} px apart")
     return q, r, J, w, dw
 
