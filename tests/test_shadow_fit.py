@@ -146,3 +146,33 @@ def test_a_pink_card_beside_a_marker_fitted_whole_is_no_silent_pick():
     assert not det.found and "two or more marker-like rhombi" in det.reason, det.reason
     taken = RhombusExtractor(ExtractorParams(shadow_model=False)).extract(canvas)
     assert taken.found and np.abs(taken.vertices_px - RHOMBUS - [img.shape[1], 0]).max() < 0.5
+
+
+@pytest.mark.parametrize("name, off_px", [("shadow_hard_209", 3.1), ("shadow_hard_11_219", 3.6)])
+def test_a_found_marker_the_scans_are_unsure_of_under_a_shadow_is_checked_by_the_fit(
+        monkeypatch: pytest.MonkeyPatch, name: str, off_px: float):
+    """Kept webcam frames (hard shadow) the scans *find* with the right vertex 3.2 and 3.7 px
+    off, reporting it unsure (2.1 and 2.5 px, over ``CHECK_SIGMA_PX``). The whole-marker fit
+    started from their vertices is taken and puts that vertex over ``CHECK_APART_PX`` away:
+    refused, saying so, and not fitted whole again (the fit was the one wrong where the
+    scans were right)."""
+    image, truth = _kept_frame(name)
+    with monkeypatch.context() as m:
+        m.setattr(shadow, "CHECK_SIGMA_PX", 99.0)
+        unchecked = RhombusExtractor().extract(image)
+    assert unchecked.found and np.linalg.norm(unchecked.vertices_px - truth, axis=1).max() > \
+        off_px
+    det = RhombusExtractor().extract(image)
+    assert not det.found and det.reason.startswith(
+        "the scans put the right vertex ") and "from where the marker fitted whole under a " \
+        "cast shadow does, their uncertainty " in det.reason, det.reason
+    assert "; fitted whole" not in det.reason
+
+
+def test_a_found_marker_the_scans_are_sure_of_is_not_checked(monkeypatch: pytest.MonkeyPatch):
+    """The check costs a fit only where a vertex's reported sigma is over ``CHECK_SIGMA_PX``:
+    a shadowed marker the scans find sure of every vertex is never fitted."""
+    image, _ = _kept_frame("shadow_hard_209")
+    monkeypatch.setattr(shadow, "CHECK_SIGMA_PX", 2.6)  # (over the scans' 2.05 px)
+    monkeypatch.setattr(shadow, "fit", lambda *_a, **_k: pytest.fail("fitted"))
+    assert RhombusExtractor().extract(image).found

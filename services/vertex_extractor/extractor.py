@@ -105,6 +105,11 @@ Where we depart from the paper, keeping its spirit:
   that fit started from its vertices: where it moves a vertex by more than a pixel, its
   vertices are reported instead, or the marker is refused where the fit is unsure of any
   vertex (``_checked_under_highlight``; 21 ms at the median).
+- A marker the scans found (cold or tracked) but report unsure of, a vertex's sigma over
+  ``shadow.CHECK_SIGMA_PX``, is checked by the whole-marker shadow fit started from its
+  vertices: refused where that fit is taken and puts a vertex over ``shadow.CHECK_APART_PX``
+  away (a shadow's boundary moved the scans' edges), and then not fitted whole again
+  (``_checked_under_shadow``; a fit where a shadow crosses the marker, 17 ms at the median).
 - The covariance reported (``covariance.py``) is that one scaled with the marker's size (the
   errors that matter do not average out along an edge) plus what the profile says about a
   misplaced edge: honest (NEES about 2) on small and large markers, under blur and shadows.
@@ -288,8 +293,9 @@ class ExtractorParams(BaseModel):
     shadow_model: bool = Field(default=True, description=(
         "last, on a cold search: a marker every other route refused is fitted whole as the "
         "rhombus under a cast shadow's straight boundary, taken only where the fit and its "
-        "surround show that shadow (shadow.py; 20 ms a view at the median, paid only on "
-        "such views)"))
+        "surround show that shadow; and a marker the scans found but are unsure of (a vertex "
+        "over 1.2 px, 1 sigma) is checked by that fit, and refused where it puts a vertex over "
+        "2 px away (shadow.py; 20 ms a view at the median, paid only on such views)"))
     highlight_model: bool = Field(default=True, description=(
         "last, on a cold search: a marker every other route refused, with clipped white "
         "on its blob, is fitted whole with the pixels near the clipped ones left out, taken "
@@ -547,8 +553,8 @@ class RhombusExtractor:
             prm[measure.UNDER_HIGHLIGHT] = p.both_scans_under_highlight
             measured = measure.measure(image, *seed, lut, model, prm)
         det, biased = self._judge(image, measured, prm, test, tracked)
-        if det.found:
-            return det, None
+        if det.found:  # (refused by the check: no fit from the blob, the fit disagreed)
+            return self._checked_under_shadow(image, det), None
         refused = int(measured[0])  # FOUND: refused by the profile or the shape test
         if biased and prm[measure.WINDOW] > p.narrow_window:
             narrow = self._narrow(prm)
@@ -562,7 +568,7 @@ class RhombusExtractor:
                     measured[1][measure.CHECKED] > 0 or not needs_rows):
                 again, _ = self._judge(image, measured, narrow, test, tracked)
                 if again.found:
-                    return again, None
+                    return self._checked_under_shadow(image, again), None
         if p.both_scans_under_highlight and measure.fit_failed(first):
             # last: under a clipped highlight, both scans' points at once (a marker with too
             # few points had it on its second try)
@@ -572,7 +578,7 @@ class RhombusExtractor:
             if measured[0] == measure.FOUND:
                 again, _ = self._judge(image, measured, both, test, tracked)
                 if again.found:
-                    return again, None
+                    return self._checked_under_shadow(image, again), None
         if test is not None and p.shape_recovery and not tracked and \
                 refused in measure.WANT_OF_POINTS:
             # (the scans with the first try's parameters: a small marker's second try
@@ -689,6 +695,31 @@ class RhombusExtractor:
                         float(stats[measure.RESIDUAL]), "", tracked, (u, d),
                         covariance.reported(v, cov, offsets, steps))
         return self._checked_under_highlight(image, det, prm, test), False
+
+    def _checked_under_shadow(self, image: np.ndarray, det: Detection) -> Detection:
+        """A marker the scans found but are unsure of (a vertex's reported sigma over
+        ``shadow.CHECK_SIGMA_PX``), checked by the fit of the whole marker under a cast
+        shadow started from its vertices: where that fit is taken and puts a vertex more than
+        ``shadow.CHECK_APART_PX`` from theirs, refused (a shadow's boundary moved the scans'
+        edges). Not fitted whole again: the fit's own vertices were the wrong ones where the
+        scans were right. A fit not taken (no shadow) leaves the detection as it is."""
+        v, cov = det.vertices_px, det.vertices_cov_px2
+        if not (det.found and self.params.shadow_model and v is not None and cov is not None):
+            return det
+        if (sigma := recover.largest_sigma_px(cov)) <= shadow.CHECK_SIGMA_PX:
+            return det
+        fit = shadow.fit(image, v, self.params.colour.lut)
+        if isinstance(fit, str):
+            return det
+        apart = np.linalg.norm(fit.vertices_px - v, axis=1)
+        if apart[k := int(np.argmax(apart))] <= shadow.CHECK_APART_PX:
+            return det
+        self._seed = None
+        return _miss(
+            f"the scans put the {profile.VERTEX_NAMES[k]} vertex {apart[k]:.1f}"
+            " px from where the marker fitted whole under a cast shadow does, their uncertainty "
+            f"{sigma:.2f}"
+            " px (1 sigma): a shadow's boundary across the marker", det.tracked)
 
     def _checked_under_highlight(self, image: np.ndarray, det: Detection, prm: np.ndarray,
                                  test: ShapeTest | None) -> Detection:

@@ -24,9 +24,17 @@ pairs); every edge's band fits within ``MAX_BAND_RMS`` of the marker's level; no
 more than ``MAX_SHIFT_PX``; and no clipped highlight is in the box. Its vertices' reported
 sigma: ``SIGMA_SCALE`` times the fit's, with a floor ``SIGMA_FLOOR_PX`` (isotropic, px).
 
+The same fit checks a marker the scans *found* but report unsure of, some vertex's sigma over
+``CHECK_SIGMA_PX`` (the extractor's ``_checked_under_shadow``): started from their vertices,
+a fit taken that puts a vertex more than ``CHECK_APART_PX`` from theirs refuses the marker (a
+shadow's boundary moved their edges; neither is taken: the fit's vertices, where the scans
+were right, were the wrong ones).
+
 numpy, with the model compiled (``quad_model.py``): 17-20 ms a fitted view at the median,
 35-46 ms at the 95th percentile (32-33 ms and 64-79 ms with the model in numpy); only views
-every other route refused pay it, and most of those stop before fitting.
+every other route refused pay it, and most of those stop before fitting; as a check, a
+found marker reporting a vertex over ``CHECK_SIGMA_PX`` (about 1 in 10 under a shadow: 20
+ms at the median; elsewhere it mostly stops at its split, 2-5 ms).
 """
 
 from __future__ import annotations
@@ -56,6 +64,8 @@ MAX_CLIPPED = 3          # clipped pixels in the quadrilateral's box, at most
 SIGMA_SCALE = 3.0        # the fit's vertex sigma understates the error (correlated pixels)
 SIGMA_FLOOR_PX = 0.15    # px
 MAX_EVALUATIONS = 40     # the fit's budget (every fit taken converged within 26)
+CHECK_SIGMA_PX = 1.2     # a found marker with a vertex this unsure (1 sigma, px) is checked
+CHECK_APART_PX = 2.0     # ... and refused where the fit puts a vertex further than this (px)
 #: before fitting, the surround must darken across the interior's split line too: its
 #: brightness ratio, read at these softnesses (px: ± 3.2 and ± 8 px off the line), at most
 #: this in one of them (no taken fit was above 0.85; three in four fits not taken skipped)
