@@ -176,3 +176,19 @@ def test_a_found_marker_the_scans_are_sure_of_is_not_checked(monkeypatch: pytest
     monkeypatch.setattr(shadow, "CHECK_SIGMA_PX", 2.6)  # (over the scans' 2.05 px)
     monkeypatch.setattr(shadow, "fit", lambda *_a, **_k: pytest.fail("fitted"))
     assert RhombusExtractor().extract(image).found
+
+
+def test_a_tracked_marker_the_check_refuses_is_not_fitted_whole_either(
+        monkeypatch: pytest.MonkeyPatch):
+    """The check runs on tracked tries too: a marker found (and so tracked) with the check
+    off is refused on the next frame with it on, by the tracked try and then by the cold
+    search, and not fitted whole."""
+    image, _ = _kept_frame("shadow_hard_209")
+    ex = RhombusExtractor()
+    with monkeypatch.context() as m:
+        m.setattr(shadow, "CHECK_SIGMA_PX", 99.0)
+        assert ex.extract(image).found
+    det = ex.extract(image)
+    assert not det.found and det.reason.startswith("the scans put the right vertex "), \
+        det.reason
+    assert "; fitted whole" not in det.reason

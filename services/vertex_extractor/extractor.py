@@ -109,7 +109,7 @@ Where we depart from the paper, keeping its spirit:
   ``shadow.CHECK_SIGMA_PX``, is checked by the whole-marker shadow fit started from its
   vertices: refused where that fit is taken and puts a vertex over ``shadow.CHECK_APART_PX``
   away (a shadow's boundary moved the scans' edges), and then not fitted whole again
-  (``_checked_under_shadow``; a fit where a shadow crosses the marker, 17 ms at the median).
+  (``_checked_under_shadow``; a fit where a shadow crosses the marker, 20 ms at the median).
 - The covariance reported (``covariance.py``) is that one scaled with the marker's size (the
   errors that matter do not average out along an edge) plus what the profile says about a
   misplaced edge: honest (NEES about 2) on small and large markers, under blur and shadows.
@@ -534,8 +534,10 @@ class RhombusExtractor:
         again with the small markers' ones, one whose edges a shadow's boundary may have moved
         with a narrower window, one whose lines failed under a clipped highlight from both
         scans' points at once (the first refusal stands when that fails too); with
-        intrinsics, one short of edge points fitted as the deployment's rhombus. A cold
-        refusal comes with what the whole-marker fits start from."""
+        intrinsics, one short of edge points fitted as the deployment's rhombus. A marker the
+        scans found is checked under a shadow (``_checked_under_shadow``); refused by that
+        check, it comes without a refusal to fit whole (the fit disagreed with the scans).
+        Any other cold refusal comes with what the whole-marker fits start from."""
         p = self.params
         lut, model = p.colour.lut, p.colour.vector
         test = self._shape if self._shape is not None and self._shape.size == (
@@ -553,7 +555,7 @@ class RhombusExtractor:
             prm[measure.UNDER_HIGHLIGHT] = p.both_scans_under_highlight
             measured = measure.measure(image, *seed, lut, model, prm)
         det, biased = self._judge(image, measured, prm, test, tracked)
-        if det.found:  # (refused by the check: no fit from the blob, the fit disagreed)
+        if det.found:  # (refused by the check: not fitted whole again)
             return self._checked_under_shadow(image, det), None
         refused = int(measured[0])  # FOUND: refused by the profile or the shape test
         if biased and prm[measure.WINDOW] > p.narrow_window:

@@ -65,6 +65,7 @@ SIGMA_SCALE = 3.0        # the fit's vertex sigma understates the error (correla
 SIGMA_FLOOR_PX = 0.15    # px
 MAX_EVALUATIONS = 40     # the fit's budget (every fit taken converged within 26)
 CHECK_SIGMA_PX = 1.2     # a found marker with a vertex this unsure (1 sigma, px) is checked
+                         # (the extractor's max_vertex_sigma_px default; set apart from it)
 CHECK_APART_PX = 2.0     # ... and refused where the fit puts a vertex further than this (px)
 #: before fitting, the surround must darken across the interior's split line too: its
 #: brightness ratio, read at these softnesses (px: ± 3.2 and ± 8 px off the line), at most
