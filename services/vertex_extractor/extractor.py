@@ -708,7 +708,10 @@ class RhombusExtractor:
         v, cov = det.vertices_px, det.vertices_cov_px2
         if not (det.found and self.params.shadow_model and v is not None and cov is not None):
             return det
-        if (sigma := recover.largest_sigma_px(cov)) <= shadow.CHECK_SIGMA_PX:
+        limit = shadow.CHECK_SIGMA_PX
+        if float((cov[:, 0, 0] + cov[:, 1, 1]).max()) <= limit * limit:
+            return det  # (the trace bounds the larger eigenvalue: 2 µs, not eigvalsh's 22)
+        if (sigma := recover.largest_sigma_px(cov)) <= limit:
             return det
         fit = shadow.fit(image, v, self.params.colour.lut)
         if isinstance(fit, str):
