@@ -248,7 +248,8 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
     seen_share = _seen_share(v, seen, x0, y0)
     corner = np.array([cx0, cy0], float)  # (the crop's, in the image)
     least = int(np.argmin(seen_share))
-    if seen_share[least] < MIN_SUPPORT:
+    hidden = least if seen_share[least] < MIN_SUPPORT else -1  # (the edge not measured)
+    if hidden >= 0:
         free: np.ndarray | str = (
             f"the {EDGE_NAMES[least]} edge is under the highlight over "
             f"{1 - seen_share[least]:.0%} of its length (at most {1 - MIN_SUPPORT:.0%})")
@@ -272,7 +273,6 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
     if isinstance(posed, str):
         return f"{free}; as the rhombus's pose: {posed}"
     p, r, J, v, to_vertices = posed
-    hidden = least if seen_share[least] < MIN_SUPPORT else -1
     if (blur := abs(p[-3]) + 0.3) > MAX_BLUR_PX:
         return (f"{free}; as the rhombus's pose: its fitted blur {blur:.1f} px is over "
                 f"{MAX_BLUR_PX} px")
