@@ -14,7 +14,7 @@ from services.core.mounts import Geometry
 from services.vertex_extractor import highlight, measure, shadow
 from services.vertex_extractor.extractor import Detection, ExtractorParams, RhombusExtractor
 from tests.test_hard_conditions import _assert_within, _kept_frame
-from tests.test_shape_recovery import _kept
+from tests.test_shape_recovery import _in_frame, _kept
 
 #: a rhombus (left, top, right, bottom) px in a 160 x 160 frame
 RHOMBUS = np.array([[40.3, 82.1], [81.7, 30.4], [121.2, 79.6], [79.9, 131.8]])
@@ -144,22 +144,53 @@ def test_a_highlight_the_scans_refuse_is_fitted_whole_within_its_uncertainty(
     _assert_within(det, truth, 0.4)
 
 
-def test_a_highlight_over_most_of_an_edge_is_refused_with_why_the_fit_was_not_taken():
-    image, _ = _kept_frame("highlight_32")
+def test_without_intrinsics_a_hidden_edge_is_given_by_the_rhombus_under_assumed_cameras():
+    """Kept webcam frames, put back where they were cropped, whose highlight washes out the
+    lower left edge (seed 2024, views 24 and 78; in 78 most of the lower right one too):
+    without the whole-marker fit refused; with it and no intrinsics, found as the rhombus's
+    pose under both assumed focal lengths (``highlight.ASSUMED_FOCAL_W``), within 0.6 px and
+    3 sigmas; the focal lengths' spread in the uncertainty, larger than with intrinsics."""
+    for name in ("highlight_24", "highlight_78"):
+        image, truth, camera = _in_frame(name)
+        refused = RhombusExtractor(ExtractorParams(highlight_model=False)).extract(image)
+        assert not refused.found, name
+        det = RhombusExtractor().extract(image)
+        _assert_within(det, truth, 0.6)
+        ex = RhombusExtractor()
+        ex.use_intrinsics(camera)
+        known = ex.extract(image)
+        _assert_within(known, truth, 0.2)
+        assert det.vertices_cov_px2 is not None and known.vertices_cov_px2 is not None
+        assert np.trace(det.vertices_cov_px2, axis1=1, axis2=2).max() > \
+            np.trace(known.vertices_cov_px2, axis1=1, axis2=2).max(), name
+
+
+def test_without_intrinsics_a_hidden_edge_the_camera_would_move_is_refused_with_why():
+    """A kept frame (seed 7, view 81) whose lower left edge is under the highlight end to end:
+    its pose under the two assumed focal lengths puts a vertex 2.24 px apart, so without
+    intrinsics it is refused, saying so; with them it is found within 0.4 px."""
+    image, truth, camera = _in_frame("highlight_7_81")
     det = RhombusExtractor().extract(image)
-    assert not det.found
-    assert "; fitted whole under a clipped highlight, refused: the upper right edge is under " \
-        "the highlight over" in det.reason, det.reason
+    assert not det.found and det.reason.endswith(
+        "the lower left edge is under the highlight over 100% of its length (at most 80%); as "
+        "the rhombus's pose (no intrinsics): a vertex's uncertainty 2.24 px over the focal "
+        "lengths assumed is over 0.8 px"), det.reason
+    ex = RhombusExtractor()
+    ex.use_intrinsics(camera)
+    _assert_within(ex.extract(image), truth, 0.4)
+
+
+def test_assumed_cameras_centre_the_principal_point():
+    camera = highlight.assumed_camera(640, 480, 1.4)
+    assert np.allclose(camera.K, [[896.0, 0.0, 319.5], [0.0, 896.0, 239.5], [0.0, 0.0, 1.0]])
+    assert camera.width == 640 and camera.height == 480 and not camera.dist.any()
 
 
 def test_with_intrinsics_a_kept_frames_hidden_edge_is_given_by_the_known_rhombus():
-    """A kept webcam frame whose highlight washes out the lower left edge: without
-    intrinsics refused, with them but without the whole-marker fit too (the edge points give
-    no three lines), with both found as the rhombus's pose within 0.2 px and 3 sigmas."""
+    """A kept webcam frame whose highlight washes out the lower left edge: with intrinsics but
+    without the whole-marker fit refused (the edge points give no three lines), with both
+    found as the rhombus's pose within 0.2 px and 3 sigmas."""
     image, truth, camera = _kept("highlight_24")
-    det = RhombusExtractor().extract(image)
-    assert not det.found and "fitted whole under a clipped highlight, refused: the lower " \
-        "left edge is under the highlight" in det.reason, det.reason
     ex = RhombusExtractor(ExtractorParams(highlight_model=False))
     ex.use_intrinsics(camera)
     assert not ex.extract(image).found
@@ -194,10 +225,10 @@ def test_with_intrinsics_a_vertex_far_under_the_highlight_is_given_by_the_known_
 
 def test_with_intrinsics_two_edges_mostly_under_the_highlight_are_given_by_the_known_rhombus():
     """A kept webcam frame (seed 2024) whose highlight covers the bottom vertex, the whole
-    lower left edge and most of the lower right one: without intrinsics refused; with them
+    lower left edge and most of the lower right one: the free fit refused; with intrinsics
     the pose from the edges seen gives the marker within 0.2 px and 3 sigmas."""
     image, truth, camera = _kept("highlight_78")
-    det = RhombusExtractor().extract(image)
+    det = RhombusExtractor().extract(image)  # (a crop: no assumed camera is its)
     assert not det.found and "fitted whole under a clipped highlight, refused: the lower " \
         "left edge is under the highlight over 100% of its length" in det.reason, det.reason
     ex = RhombusExtractor()

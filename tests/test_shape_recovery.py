@@ -82,16 +82,34 @@ HIDDEN = ("highlight_10", "highlight_76", "highlight_124",
 
 def _kept(name: str) -> tuple[np.ndarray, np.ndarray, CameraModel]:
     """A kept frame, its true vertices (px) and the paper's camera for the crop."""
-    image = cv2.imread(str(KEPT / f"{name}.png"))
-    assert image is not None, f"{KEPT / name}.png is missing or unreadable"
-    meta = json.loads((KEPT / f"{name}.json").read_text())
-    x0, y0 = (int(v) for v in meta["source"].split("cropped at x ")[1].split(" (")[0]
-              .replace(" y", "").split(","))
+    image, meta, (x0, y0) = _read_kept(name)
     K = CAMERA.K.copy()
     K[0, 2] -= x0
     K[1, 2] -= y0
     crop = CameraModel(K, CAMERA.dist.copy(), image.shape[1], image.shape[0])
     return read_only(image), np.array(meta["vertices_px"]), crop  # (as the kernels take it)
+
+
+def _in_frame(name: str) -> tuple[np.ndarray, np.ndarray, CameraModel]:
+    """A kept frame put back where it was cropped from, in a frame of the paper's camera's
+    size (its border pixels repeated outward): as the camera delivers it, the principal
+    point where an extractor without intrinsics assumes it (``highlight.assumed_camera``).
+    The frame, its true vertices (px) and the paper's camera."""
+    image, meta, (x0, y0) = _read_kept(name)
+    h, w = image.shape[:2]
+    frame = cv2.copyMakeBorder(image, y0, CAMERA.height - y0 - h, x0, CAMERA.width - x0 - w,
+                               cv2.BORDER_REPLICATE)
+    return read_only(frame), np.array(meta["vertices_px"]) + np.array([x0, y0]), CAMERA
+
+
+def _read_kept(name: str) -> tuple[np.ndarray, dict, tuple[int, int]]:
+    """A kept frame, its metadata and where it was cropped (x, y px)."""
+    image = cv2.imread(str(KEPT / f"{name}.png"))
+    assert image is not None, f"{KEPT / name}.png is missing or unreadable"
+    meta = json.loads((KEPT / f"{name}.json").read_text())
+    x0, y0 = (int(v) for v in meta["source"].split("cropped at x ")[1].split(" (")[0]
+              .replace(" y", "").split(","))
+    return image, meta, (x0, y0)
 
 
 @pytest.mark.parametrize("name", HIDDEN)

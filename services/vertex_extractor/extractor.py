@@ -98,9 +98,10 @@ Where we depart from the paper, keeping its spirit:
   (``shadow_model``; 20 ms at the median, paid only on such views). Where clipped white
   touches the blob, the same fit without the shadow, the pixels near the clipped ones left
   out, from the blob's hull: a glossy print's highlight that hides too much of an edge for
-  the scans (``highlight.py``, ``highlight_model``; 20 ms at the median, up to 0.2 s); with
-  intrinsics, an edge under the highlight or a vertex too uncertain is given by the
-  rhombus's pose (65 ms at the median, up to 0.8 s).
+  the scans (``highlight.py``, ``highlight_model``; 20 ms at the median, up to 0.2 s); an
+  edge under the highlight or a vertex too uncertain is given by the rhombus's pose (65 ms
+  at the median, up to 0.8 s); without intrinsics, by its poses under two assumed cameras
+  where they agree (90 ms more at the median).
 - A marker the scans found (cold or tracked) with clipped white near a vertex is checked by
   that fit started from its vertices: where it moves a vertex by more than a pixel, its
   vertices are reported instead, or the marker is refused where the fit is unsure of any
@@ -300,12 +301,14 @@ class ExtractorParams(BaseModel):
         "last, on a cold search: a marker every other route refused, with clipped white "
         "on its blob, is fitted whole with the pixels near the clipped ones left out, taken "
         "only where every edge is seen over a fifth of its length and no vertex is too "
-        "uncertain (with intrinsics, else as the rhombus's pose that the edges seen fix); "
-        "and a marker the scans "
+        "uncertain, else as the rhombus's pose that the edges seen fix (without intrinsics "
+        "under two assumed cameras, focal lengths 0.7 and 1.4 times the frame's width, "
+        "taken where they agree); and a marker the scans "
         "found with clipped white near a vertex is checked by that fit, which replaces "
         "their vertices where it moves one by over 1 px, or refuses the marker where it is "
         "unsure of any vertex (highlight.py; 20 ms a fit at the median, up to 0.2 s, with "
-        "intrinsics and the pose 65 ms, up to 0.8 s; paid only on such views)"))
+        "the pose 65 ms, up to 0.8 s, with two assumed cameras 90 ms more; paid only on "
+        "such views)"))
 
 
 _EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING,
@@ -366,6 +369,9 @@ class RhombusExtractor:
         if diagonal_ratio is None:
             diagonal_ratio = g.marker_width_m / g.marker_height_m
         self.diagonal_ratio = diagonal_ratio
+        #: the rhombus (4, 3) m, left, top, right, bottom, with this diagonal ratio
+        self._marker_m = g.marker_points() * [diagonal_ratio * g.marker_height_m
+                                              / g.marker_width_m, 1.0, 1.0]
         #: the largest share of a diagonal by which the diagonals may cross off their
         #: midpoints (``lines.diagonal_shift``), from the marker seen from ``nearest_view_m``
         self.max_diagonal_shift = min(DIAGONAL_SHIFT_SLACK * 0.5 * max(
@@ -597,7 +603,8 @@ class RhombusExtractor:
         else why not (the scans' refusal stands)."""
         c = self.params.colour
         fit = highlight.fit(image, seed[:2], c.lut, c.vector, c.green_bound,
-                            *((test.camera, test.marker_points) if test is not None else ()))
+                            *((test.camera, test.marker_points) if test is not None else
+                              (None, self._marker_m)))
         return fit if isinstance(fit, str) else self._as_detection(image, fit, prm, test)
 
     def _shadowed(self, image: np.ndarray, v0: np.ndarray, prm: np.ndarray,
