@@ -145,12 +145,13 @@ def test_a_highlight_the_scans_refuse_is_fitted_whole_within_its_uncertainty(
 
 
 def test_without_intrinsics_a_hidden_edge_is_given_by_the_rhombus_under_assumed_cameras():
-    """Kept webcam frames, put back where they were cropped, whose highlight washes out the
-    lower left edge (seed 2024, views 24 and 78; in 78 most of the lower right one too):
-    without the whole-marker fit refused; with it and no intrinsics, found as the rhombus's
-    pose under both assumed focal lengths (``highlight.ASSUMED_FOCAL_W``), within 0.6 px and
-    3 sigmas; the focal lengths' spread in the uncertainty, larger than with intrinsics."""
-    for name in ("highlight_24", "highlight_78"):
+    """Kept webcam frames, put back where they were cropped, whose highlight washes out an
+    edge (seed 2024: views 24 and 78 the lower left one, in 78 most of the lower right one
+    too; view 32 most of the upper right one): refused where the whole-marker fit is off;
+    with it and no intrinsics, found as the rhombus's pose under both assumed focal lengths
+    (``highlight.ASSUMED_FOCAL_W``), within 0.6 px and 3 sigmas (with intrinsics 0.5 px);
+    the focal lengths' spread in the uncertainty, larger than with intrinsics."""
+    for name in ("highlight_24", "highlight_78", "highlight_32"):
         image, truth, camera = _in_frame(name)
         refused = RhombusExtractor(ExtractorParams(highlight_model=False)).extract(image)
         assert not refused.found, name
@@ -159,7 +160,7 @@ def test_without_intrinsics_a_hidden_edge_is_given_by_the_rhombus_under_assumed_
         ex = RhombusExtractor()
         ex.use_intrinsics(camera)
         known = ex.extract(image)
-        _assert_within(known, truth, 0.2)
+        _assert_within(known, truth, 0.5)
         assert det.vertices_cov_px2 is not None and known.vertices_cov_px2 is not None
         assert np.trace(det.vertices_cov_px2, axis1=1, axis2=2).max() > \
             np.trace(known.vertices_cov_px2, axis1=1, axis2=2).max(), name
@@ -167,8 +168,9 @@ def test_without_intrinsics_a_hidden_edge_is_given_by_the_rhombus_under_assumed_
 
 def test_without_intrinsics_a_hidden_edge_the_camera_would_move_is_refused_with_why():
     """A kept frame (seed 7, view 81) whose lower left edge is under the highlight end to end:
-    its pose under the two assumed focal lengths puts a vertex 2.24 px apart, so without
-    intrinsics it is refused, saying so; with them it is found within 0.4 px."""
+    its poses under the two assumed focal lengths put the left vertex 4.3 px apart (an
+    uncertainty of 2.24 px), so without intrinsics it is refused, saying so; with them it is
+    found within 0.4 px."""
     image, truth, camera = _in_frame("highlight_7_81")
     det = RhombusExtractor().extract(image)
     assert not det.found and det.reason.endswith(
@@ -228,7 +230,7 @@ def test_with_intrinsics_two_edges_mostly_under_the_highlight_are_given_by_the_k
     lower left edge and most of the lower right one: the free fit refused; with intrinsics
     the pose from the edges seen gives the marker within 0.2 px and 3 sigmas."""
     image, truth, camera = _kept("highlight_78")
-    det = RhombusExtractor().extract(image)  # (a crop: no assumed camera is its)
+    det = RhombusExtractor().extract(image)  # (a crop: the cameras assumed are not its)
     assert not det.found and "fitted whole under a clipped highlight, refused: the lower " \
         "left edge is under the highlight over 100% of its length" in det.reason, det.reason
     ex = RhombusExtractor()

@@ -57,7 +57,8 @@ Tuned on seeds 2024, 7 and 11 (``MAX_SIGMA_PX`` and the check on seeds 200-209);
 seeds 31-35 and other photographs. numpy and OpenCV, the model compiled (``quad_model.py``):
 20 ms a fit at the median, 62 ms at the 95th percentile, 0.16 s at most (a fit may take up
 to ``MAX_EVALUATIONS``: a start far off crawls in); with intrinsics, the free fit and the
-pose's together 65 ms, 0.21 s and 0.84 s; a check 21 ms, 43 ms and 75 ms. Only views
+pose's together 65 ms, 0.21 s and 0.84 s (without intrinsics, the two assumed cameras' poses
+88 ms more at the median); a check 21 ms, 43 ms and 75 ms. Only views
 every other route refused, with clipped white on the blob, and found markers with clipped
 white near a vertex pay it.
 """
@@ -94,7 +95,8 @@ SIGMA_SCALE = 5.0        # the fit's vertex sigma understates the error (see the
 SIGMA_FLOOR_PX = 0.15    # px
 MAX_SIGMA_PX = 0.5       # a vertex more uncertain (1 sigma, px) refuses the free fit: more
                          # were wrong there (seeds 200-209: 7 of 348 fits up to 1.2 px)
-MAX_POSE_SIGMA_PX = 0.8  # ... a pose's (with intrinsics): 3 of the 9 wrong of 628 over it
+MAX_POSE_SIGMA_PX = 0.8  # ... a pose's (with intrinsics: 3 of the 9 wrong of 628 over it;
+                         # without, the assumed cameras' too, their spread included)
 START_BLUR_PX = 2.5      # the blur the fit starts from: wide, so that edges far off pull
 CHECK_START_BLUR_PX = 1.5  # ... from the scans' vertices (a check): they are near
 CHECK_NEAR_PX = 25       # a found marker with clipped white this near a vertex is checked (px)
@@ -299,7 +301,7 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
                     f"{focal_w:g} x the width): {posed}")
         fits.append(posed)
     ends = np.array([f.vertices_px for f in fits])
-    half = 0.5 * np.linalg.norm(ends[-1] - ends[0], axis=1)  # px, each vertex
+    half = np.linalg.norm(ends - ends.mean(0), axis=2).max(0)  # px, each vertex
     cov = np.max([f.cov_px2 for f in fits], axis=0) + (half ** 2)[:, None, None] * np.eye(2)
     if (sigma := math.sqrt(float(np.linalg.eigvalsh(cov)[:, 1].max()))) > MAX_POSE_SIGMA_PX:
         return (f"{free}; as the rhombus's pose (no intrinsics): a vertex's uncertainty "
