@@ -168,14 +168,14 @@ def test_without_intrinsics_a_hidden_edge_is_given_by_the_rhombus_under_assumed_
 
 def test_without_intrinsics_a_hidden_edge_the_camera_would_move_is_refused_with_why():
     """A kept frame (seed 7, view 81) whose lower left edge is under the highlight end to end:
-    its poses under the two assumed focal lengths put the left vertex 4.3 px apart (an
-    uncertainty of 2.24 px), so without intrinsics it is refused, saying so; with them it is
+    its poses under the two assumed focal lengths put the left vertex 4.1 px apart (an
+    uncertainty of 2.14 px), so without intrinsics it is refused, saying so; with them it is
     found within 0.4 px."""
     image, truth, camera = _in_frame("highlight_7_81")
     det = RhombusExtractor().extract(image)
     assert not det.found and det.reason.endswith(
         "the lower left edge is under the highlight over 100% of its length (at most 80%); as "
-        "the rhombus's pose (no intrinsics): a vertex's uncertainty 2.24 px over the focal "
+        "the rhombus's pose (no intrinsics): a vertex's uncertainty 2.14 px over the focal "
         "lengths assumed is over 0.8 px"), det.reason
     ex = RhombusExtractor()
     ex.use_intrinsics(camera)

@@ -101,7 +101,7 @@ Where we depart from the paper, keeping its spirit:
   the scans (``highlight.py``, ``highlight_model``; 20 ms at the median, up to 0.2 s); an
   edge under the highlight or a vertex too uncertain is given by the rhombus's pose (65 ms
   at the median, up to 0.8 s); without intrinsics, by its poses under two assumed cameras
-  where they agree (90 ms more at the median).
+  where they agree (100 ms more at the median).
 - A marker the scans found (cold or tracked) with clipped white near a vertex is checked by
   that fit started from its vertices: where it moves a vertex by more than a pixel, its
   vertices are reported instead, or the marker is refused where the fit is unsure of any
@@ -302,12 +302,12 @@ class ExtractorParams(BaseModel):
         "on its blob, is fitted whole with the pixels near the clipped ones left out, taken "
         "only where every edge is seen over a fifth of its length and no vertex is too "
         "uncertain, else as the rhombus's pose that the edges seen fix (without intrinsics "
-        "under two assumed cameras, focal lengths 0.7 and 1.4 times the frame's width, "
+        "under two assumed cameras, focal lengths 0.5 and 1.4 times the frame's width, "
         "taken where they agree); and a marker the scans "
         "found with clipped white near a vertex is checked by that fit, which replaces "
         "their vertices where it moves one by over 1 px, or refuses the marker where it is "
         "unsure of any vertex (highlight.py; 20 ms a fit at the median, up to 0.2 s, with "
-        "the pose 65 ms, up to 0.8 s, with two assumed cameras 90 ms more; paid only on "
+        "the pose 65 ms, up to 0.8 s, with two assumed cameras 100 ms more; paid only on "
         "such views)"))
 
 

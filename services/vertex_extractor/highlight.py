@@ -45,7 +45,7 @@ the frame's centre (the frame must be the camera's whole image, not a crop). Onl
 length is then unknown, and the edges seen leave one degree of freedom: the pose is fitted
 as above under the focal lengths ``ASSUMED_FOCAL_W`` (times the frame's width) and taken
 where both are taken, their vertices' mean, each covariance the larger plus half their
-distance apart squared, within ``MAX_POSE_SIGMA_PX``: the highlight's views found on 92-94 %
+distance apart squared, within ``MAX_POSE_SIGMA_PX``: the highlight's views found on 90-93 %
 instead of 85-88 %, at most 0.3 % wrong.
 
 The same fit checks a marker the scans *found* with clipped white within ``CHECK_NEAR_PX``
@@ -58,7 +58,7 @@ seeds 31-35 and other photographs. numpy and OpenCV, the model compiled (``quad_
 20 ms a fit at the median, 62 ms at the 95th percentile, 0.16 s at most (a fit may take up
 to ``MAX_EVALUATIONS``: a start far off crawls in); with intrinsics, the free fit and the
 pose's together 65 ms, 0.21 s and 0.84 s (without intrinsics, the two assumed cameras' poses
-88 ms more at the median); a check 21 ms, 43 ms and 75 ms. Only views
+98 ms more at the median); a check 21 ms, 43 ms and 75 ms. Only views
 every other route refused, with clipped white on the blob, and found markers with clipped
 white near a vertex pay it.
 """
@@ -107,9 +107,9 @@ CHECK_APART_SHARE = 0.5  # a taken check's vertex sigma grows by this share of i
                          # the fit's alone had 19 of 137 more than 3 sigmas off, this 5
 MAX_EVALUATIONS = 80     # the fit's budget
 #: without intrinsics, the pose is fitted under cameras with these focal lengths (x the
-#: image's width: horizontal fields of view of 71 and 39 deg, most webcams'), the principal
+#: image's width: horizontal fields of view of 90 and 39 deg, most webcams'), the principal
 #: point at the centre; taken where they agree (their spread in the uncertainty)
-ASSUMED_FOCAL_W = (0.7, 1.4)
+ASSUMED_FOCAL_W = (0.5, 1.4)
 
 #: not tried: the extractor's own refusal says enough
 NO_HIGHLIGHT = "no clipped white on the marker's blob"
