@@ -193,9 +193,8 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
     what its edges show fixing it (``_fit_pose``); with ``model_m`` and no ``camera``, under
     the cameras ``assumed_camera`` gives for ``ASSUMED_FOCAL_W``, taken where they agree.
     ``start_px``: the scans' vertices (4, 2) px, left, top, right, bottom, to start from,
-    as a check of them (its caller judges the
-    uncertainty: no ``MAX_SIGMA_PX`` and no pose fit; a box over ``shadow.MAX_BOX_PX`` is
-    not checked); else the blob's hull."""
+    as a check of them (its caller judges the uncertainty: no ``MAX_SIGMA_PX`` and no pose
+    fit; a box over ``shadow.MAX_BOX_PX`` is not checked); else the blob's hull."""
     H, W = image.shape[:2]
     cx0, cy0 = max(seed[0] - WINDOW_PX, 0), max(seed[1] - WINDOW_PX, 0)
     cx1, cy1 = min(seed[0] + WINDOW_PX + 1, W), min(seed[1] + WINDOW_PX + 1, H)
@@ -303,7 +302,7 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
     ends = np.array([f.vertices_px for f in fits])
     half = np.linalg.norm(ends - ends.mean(0), axis=2).max(0)  # px, each vertex
     cov = np.max([f.cov_px2 for f in fits], axis=0) + (half ** 2)[:, None, None] * np.eye(2)
-    if (sigma := math.sqrt(float(np.linalg.eigvalsh(cov)[:, 1].max()))) > MAX_POSE_SIGMA_PX:
+    if (sigma := recover.largest_sigma_px(cov)) > MAX_POSE_SIGMA_PX:
         return (f"{free}; as the rhombus's pose (no intrinsics): a vertex's uncertainty "
                 f"{sigma:.2f} px over the focal lengths assumed is over {MAX_POSE_SIGMA_PX} px")
     return HighlightFit(ends.mean(0), cov, max(f.residual_px for f in fits))
