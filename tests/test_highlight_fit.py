@@ -182,6 +182,31 @@ def test_without_intrinsics_a_hidden_edge_the_camera_would_move_is_refused_with_
     _assert_within(ex.extract(image), truth, 0.4)
 
 
+def test_without_intrinsics_the_camera_learned_from_the_marker_gives_the_hidden_edge():
+    """An extractor without intrinsics learns the camera from its detections of webcam
+    renders through the paper's camera (``learned_camera.py``): its focal length within 3 %
+    and its principal point within 20 px of the paper's. The kept frame whose hidden edge the
+    assumed cameras leave 4.1 px apart (``highlight_7_81``, refused above) is then found as
+    the rhombus's pose under the learned camera (its focal length ± 3 %) within 1 px and 3
+    sigmas (0.75 px at 0.76 px). The camera stays through ``reset``; intrinsics take over from
+    it."""
+    from services.sim.scenes import random_views
+    ex = RhombusExtractor()
+    for view in random_views(100, seed=8, distance_m=(0.2, 0.8), webcam=True):
+        ex.reset()
+        ex.extract(view.rendered.image)
+    learned, paper = ex.learned_camera, CameraModel.paper()
+    assert learned is not None
+    assert abs(learned.f - paper.K[0, 0]) < 0.03 * paper.K[0, 0]
+    assert np.hypot(learned.cx - paper.K[0, 2], learned.cy - paper.K[1, 2]) < 20.0
+    image, truth, camera = _in_frame("highlight_7_81")
+    ex.reset()
+    _assert_within(ex.extract(image), truth, 1.0)
+    assert ex.learned_camera is learned
+    ex.use_intrinsics(camera)
+    assert ex.learned_camera is None
+
+
 def test_assumed_cameras_centre_the_principal_point():
     camera = highlight.assumed_camera(640, 480, 1.4)
     assert np.allclose(camera.K, [[896.0, 0.0, 319.5], [0.0, 896.0, 239.5], [0.0, 0.0, 1.0]])

@@ -100,8 +100,10 @@ Where we depart from the paper, keeping its spirit:
   out, from the blob's hull: a glossy print's highlight that hides too much of an edge for
   the scans (``highlight.py``, ``highlight_model``; 20 ms at the median, up to 0.2 s); an
   edge under the highlight or a vertex too uncertain is given by the rhombus's pose (65 ms
-  at the median, up to 0.8 s); without intrinsics, by its poses under two assumed cameras
-  where they agree (100 ms more at the median).
+  at the median, up to 0.8 s); without intrinsics, by its poses under two cameras where
+  they agree (100 ms more at the median): the camera learned from the marker's own
+  detections, its focal length ± 3 % (``learned_camera.py``, ``learn_camera``), or before it
+  is learned, two assumed focal lengths.
 - A marker the scans found (cold or tracked) with clipped white near a vertex is checked by
   that fit started from its vertices: where it moves a vertex by more than a pixel, its
   vertices are reported instead, or the marker is refused where the fit is unsure of any
@@ -151,6 +153,7 @@ from services.vertex_extractor import (
     shape,
 )
 from services.vertex_extractor.colour import ColourModel, grid_mask
+from services.vertex_extractor.learned_camera import CameraLearner, Solved
 from services.vertex_extractor.shape import ShapeParams, ShapeTest
 
 
@@ -309,6 +312,13 @@ class ExtractorParams(BaseModel):
         "unsure of any vertex (highlight.py; 20 ms a fit at the median, up to 0.2 s, with "
         "the pose 65 ms, up to 0.8 s, with two assumed cameras 100 ms more; paid only on "
         "such views)"))
+    learn_camera: bool = Field(default=True, description=(
+        "without intrinsics, the camera is learned from the scans' confident detections of "
+        "the marker (square pixels, no distortion: its focal length and principal point, "
+        "learned_camera.py: after 40 distinct views, then every 20-80 new ones, two frames "
+        "pay 10-15 ms each), and once the older and newer halves of its views agree, a marker "
+        "under a highlight is fitted as the rhombus's pose under it (its focal length +- 3 %) "
+        "instead of the two assumed cameras"))
 
 
 _EDGES = {"global": scan.GLOBAL, "local": scan.LOCAL, "crossing": scan.CROSSING,
@@ -389,6 +399,8 @@ class RhombusExtractor:
         self._prm_small = self._vector(self._small)
         self._seed: tuple[int, int, int] | None = None  # x, y, search radius (px)
         self._shape: ShapeTest | None = None
+        #: the camera learned from the marker (no intrinsics; ``learn_camera``)
+        self._learner: CameraLearner | None = None
         self._loose = (self._prm, self._prm_small)  # the weak shape test's bounds, loosened
 
     def use_intrinsics(self, camera: CameraModel | None, geometry: Geometry | None = None
@@ -416,7 +428,17 @@ class RhombusExtractor:
     def intrinsics(self) -> CameraModel | None:
         return None if self._shape is None else self._shape.camera
 
+    @property
+    def learned_camera(self) -> Solved | None:
+        """The camera learned from the marker (no intrinsics, ``learn_camera``), once the
+        older and newer halves of the views it has kept agree; None before, or with
+        intrinsics."""
+        return None if self._learner is None or self._shape is not None else \
+            self._learner.camera()
+
     def reset(self) -> None:
+        """Forget the last marker (the next frame is searched cold); the camera learned from
+        the marker stays."""
         self._seed = None
 
     def extract(self, image: np.ndarray) -> Detection:
@@ -428,12 +450,25 @@ class RhombusExtractor:
         if self._seed is not None:
             det = self._scanned(image, self._seed, tracked=True)[0]  # (no fit: a cold try's)
             if det.found:
-                return det
+                return self._learn_from(image, det)
         seeds = self._coarse_search(image)
         if isinstance(seeds, str):
             self._seed = None
             return _miss(seeds)
-        return self._first_marker(image, seeds)
+        return self._learn_from(image, self._first_marker(image, seeds))
+
+    def _learn_from(self, image: np.ndarray, det: Detection) -> Detection:
+        """``det``, after the camera learner (no intrinsics, ``learn_camera``) has seen it if
+        the scans found it (their edge points with it; not a whole-marker fit's)."""
+        if not (det.found and self.params.learn_camera and self._shape is None
+                and det.edge_points is not None and det.vertices_px is not None
+                and det.vertices_cov_px2 is not None):
+            return det
+        H, W = image.shape[:2]
+        if self._learner is None or (self._learner.width, self._learner.height) != (W, H):
+            self._learner = CameraLearner(self._marker_m, W, H)  # (a new camera size)
+        self._learner.add(det.vertices_px, det.vertices_cov_px2)
+        return det
 
     def _first_marker(self, image: np.ndarray, seeds: list[tuple[int, int, int]]
                       ) -> Detection:
@@ -602,9 +637,12 @@ class RhombusExtractor:
         (``highlight.py``), if the fit is taken and passes the tests any detection passes;
         else why not (the scans' refusal stands)."""
         c = self.params.colour
-        fit = highlight.fit(image, seed[:2], c.lut, c.vector, c.green_bound,
-                            *((test.camera, test.marker_points) if test is not None else
-                              (None, self._marker_m)))
+        learned = self._learner.cameras() if self._learner is not None and \
+            (self._learner.width, self._learner.height) == image.shape[1::-1] else []
+        camera, model_m = (test.camera, test.marker_points) if test is not None else \
+            (None, self._marker_m)
+        fit = highlight.fit(image, seed[:2], c.lut, c.vector, c.green_bound, camera, model_m,
+                            assumed=learned or None)
         return fit if isinstance(fit, str) else self._as_detection(image, fit, prm, test)
 
     def _shadowed(self, image: np.ndarray, v0: np.ndarray, prm: np.ndarray,

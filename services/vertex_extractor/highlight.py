@@ -40,12 +40,16 @@ intrinsics the highlight's views are found on 97-98 % (92-93 % with the pose for
 edge only, beside three seen over 30 % of their length), about 1 % of the pose's detections
 over 2 px off (docs/measured.md).
 
-Without intrinsics, a camera is assumed: square pixels, no distortion, the principal point at
-the frame's centre (the frame must be the camera's whole image, not a crop). Only the focal
-length is then unknown, and the edges seen leave one degree of freedom: the pose is fitted
-as above under the focal lengths ``ASSUMED_FOCAL_W`` (times the frame's width) and taken
-where both are taken, their vertices' mean, each covariance the larger plus half their
-distance apart squared, within ``MAX_POSE_SIGMA_PX``: the highlight's views found on 90-93 %
+Without intrinsics, a camera is assumed: square pixels, no distortion. Only the focal length
+and the principal point are then unknown, and the edges seen leave them free: the pose is
+fitted as above under two cameras and taken where both are taken, their vertices' mean, each
+covariance the larger plus their distance from the mean squared, within
+``MAX_POSE_SIGMA_PX``, another pose within ``POSE_TIE_ASSUMED`` of the best refusing (the
+assumed camera's error moves the poses' costs). The two cameras: once the extractor has
+learned the camera from the marker (``learned_camera.py``), its focal length ± 3 % and its
+principal point (found on 95-96 % of the highlight's views, at most 0.3 % wrong); before
+that, the focal lengths ``ASSUMED_FOCAL_W`` (times the frame's width) with the principal
+point at the frame's centre (the frame must be the camera's whole image, not a crop): 90-93 %
 instead of 85-88 %, at most 0.3 % wrong.
 
 The same fit checks a marker the scans *found* with clipped white within ``CHECK_NEAR_PX``
@@ -66,7 +70,7 @@ white near a vertex pay it.
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import cv2
@@ -88,6 +92,8 @@ MIN_MARKER_PX = 20       # the blob's unclipped marker pixels, at least
 MIN_SUPPORT = 0.2        # every edge's share seen (not masked), at least (but as a pose)
 POSE_STARTS = 3          # the poses fitted, from the starts that fit best
 POSE_TIE = 0.005         # another pose whose cost is within this share of the best ...
+POSE_TIE_ASSUMED = 0.01  # ... (a camera assumed or learned: its error moves the poses' costs;
+                         # the true camera's tie 0.1 % apart was 0.9 % under the learned one)
 POSE_APART_PX = 1.0      # ... with a vertex further than this from the best's: ambiguous
 MAX_BAND_RMS = 0.1       # an edge band's RMS residual over the marker's level, at most
 MAX_BLUR_PX = 2.0        # the edges' fitted blur (Gaussian sigma, px), at most
@@ -183,18 +189,20 @@ def _blob(crop: np.ndarray, white: np.ndarray, seed: tuple[int, int], lut: np.nd
 
 def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.ndarray,
         green_bound: np.ndarray, camera: CameraModel | None = None,
-        model_m: np.ndarray | None = None, start_px: np.ndarray | None = None
-        ) -> HighlightFit | str:
+        model_m: np.ndarray | None = None, start_px: np.ndarray | None = None,
+        assumed: Sequence[CameraModel] | None = None) -> HighlightFit | str:
     """The marker at ``seed`` (x, y px) in a BGR uint8 image, under a clipped highlight,
     fitted whole; or why not (a string). ``lut``, ``vector``, ``green_bound``: the colour
     model's (``colour.ColourModel``). With the ``camera`` and the rhombus ``model_m`` (4, 3)
     m (left, top, right, bottom), a free fit refused for an edge under the highlight or for
     a vertex's uncertainty over ``MAX_SIGMA_PX`` is fitted again as the rhombus's pose,
     what its edges show fixing it (``_fit_pose``); with ``model_m`` and no ``camera``, under
-    the cameras ``assumed_camera`` gives for ``ASSUMED_FOCAL_W``, taken where they agree.
-    ``start_px``: the scans' vertices (4, 2) px, left, top, right, bottom, to start from,
-    as a check of them (its caller judges the uncertainty: no ``MAX_SIGMA_PX`` and no pose
-    fit; a box over ``shadow.MAX_BOX_PX`` is not checked); else the blob's hull."""
+    the cameras ``assumed`` (default: those ``assumed_camera`` gives for
+    ``ASSUMED_FOCAL_W``; the extractor's learned camera's band, ``learned_camera.py``),
+    taken where they agree. ``start_px``: the scans' vertices (4, 2) px, left, top, right,
+    bottom, to start from, as a check of them (its caller judges the uncertainty: no
+    ``MAX_SIGMA_PX`` and no pose fit; a box over ``shadow.MAX_BOX_PX`` is not checked);
+    else the blob's hull."""
     H, W = image.shape[:2]
     cx0, cy0 = max(seed[0] - WINDOW_PX, 0), max(seed[1] - WINDOW_PX, 0)
     cx1, cy1 = min(seed[0] + WINDOW_PX + 1, W), min(seed[1] + WINDOW_PX + 1, H)
@@ -286,25 +294,32 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
         return free
 
     def as_pose(cam: CameraModel) -> HighlightFit | str:
-        return _as_pose(residual, p, v, least, hidden, cam, model_m, corner, f_scale, x, y)
+        tie = POSE_TIE if cam is camera else POSE_TIE_ASSUMED
+        return _as_pose(residual, p, v, least, hidden, cam, model_m, corner, f_scale, x, y, tie)
     if camera is not None:
         posed = as_pose(camera)
         return posed if not isinstance(posed, str) else f"{free}; as the rhombus's pose: {posed}"
     # no intrinsics: the pose under each assumed camera; where they agree, their mean, their
     # spread in the uncertainty
     fits: list[HighlightFit] = []
-    for focal_w in ASSUMED_FOCAL_W:
-        posed = as_pose(assumed_camera(W, H, focal_w))
+    learned = assumed is not None
+    cameras = assumed if assumed is not None else [assumed_camera(W, H, focal_w)
+                                                   for focal_w in ASSUMED_FOCAL_W]
+    for cam in cameras:
+        posed = as_pose(cam)
         if isinstance(posed, str):
-            return (f"{free}; as the rhombus's pose (no intrinsics; focal length assumed "
-                    f"{focal_w:g} x the width): {posed}")
+            how = "the camera learned from the marker at" if learned else "assumed"
+            return (f"{free}; as the rhombus's pose (no intrinsics; focal length {how} "
+                    f"{cam.K[0, 0] / W:.3g} x the width): {posed}")
         fits.append(posed)
     ends = np.array([f.vertices_px for f in fits])
     half = np.linalg.norm(ends - ends.mean(0), axis=2).max(0)  # px, each vertex
     cov = np.max([f.cov_px2 for f in fits], axis=0) + (half ** 2)[:, None, None] * np.eye(2)
     if (sigma := recover.largest_sigma_px(cov)) > MAX_POSE_SIGMA_PX:
         return (f"{free}; as the rhombus's pose (no intrinsics): a vertex's uncertainty "
-                f"{sigma:.2f} px over the focal lengths assumed is over {MAX_POSE_SIGMA_PX} px")
+                f"{sigma:.2f} px over the focal lengths "
+                f"{'of the camera learned from the marker' if learned else 'assumed'} is over "
+                f"{MAX_POSE_SIGMA_PX} px")
     return HighlightFit(ends.mean(0), cov, max(f.residual_px for f in fits))
 
 
@@ -319,11 +334,11 @@ def assumed_camera(width: int, height: int, focal_w: float) -> CameraModel:
 def _as_pose(residual: Callable[[np.ndarray, bool], tuple[np.ndarray, np.ndarray | None]],
              p: np.ndarray, v: np.ndarray, least: int, hidden: int, camera: CameraModel,
              model_m: np.ndarray, corner: np.ndarray, f_scale: float, x: np.ndarray,
-             y: np.ndarray) -> HighlightFit | str:
+             y: np.ndarray, tie: float) -> HighlightFit | str:
     """The free fit (p, its vertices v in the crop at ``corner``) fitted again as the rhombus
-    ``model_m`` seen by ``camera`` (``_fit_pose``) and judged (blur, the edges' bands but
-    ``hidden``'s, ``MAX_POSE_SIGMA_PX``); or why not."""
-    posed = _fit_pose(residual, p, v, least, camera, model_m, corner, f_scale)
+    ``model_m`` seen by ``camera`` (``_fit_pose``, ambiguous within ``tie``) and judged
+    (blur, the edges' bands but ``hidden``'s, ``MAX_POSE_SIGMA_PX``); or why not."""
+    posed = _fit_pose(residual, p, v, least, camera, model_m, corner, f_scale, tie)
     if isinstance(posed, str):
         return posed
     p, r, J, v, to_vertices = posed
@@ -343,7 +358,7 @@ def _as_pose(residual: Callable[[np.ndarray, bool], tuple[np.ndarray, np.ndarray
 
 def _fit_pose(residual: Callable[[np.ndarray, bool], tuple[np.ndarray, np.ndarray | None]],
               p: np.ndarray, v: np.ndarray, hidden: int, camera: CameraModel,
-              model_m: np.ndarray, corner: np.ndarray, f_scale: float
+              model_m: np.ndarray, corner: np.ndarray, f_scale: float, tie: float = POSE_TIE
               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray] | str:
     """The marker fitted (``residual`` of the 11 parameters p: vertices px in the crop,
     blur, level, floor) as the rhombus ``model_m`` seen by ``camera``: 9 parameters (the
@@ -393,7 +408,7 @@ def _fit_pose(residual: Callable[[np.ndarray, bool], tuple[np.ndarray, np.ndarra
     w, dw = vertices(q)
     for c, _, other in fits[1:]:
         apart = float(np.linalg.norm(vertices(other[0])[0] - w, axis=1).max())
-        if c <= (1.0 + POSE_TIE) * fits[0][0] and apart > POSE_APART_PX:
+        if c <= (1.0 + tie) * fits[0][0] and apart > POSE_APART_PX:
             return (f"two poses fit its seen edges alike (costs {c / fits[0][0] - 1:.1%} "
                     f"apart), their vertices {apart:.1f} px apart")
     return q, r, J, w, dw

@@ -3,7 +3,9 @@
 With the camera's intrinsics (``intrinsics``, a file, or else ``camera/intrinsics``, asked
 once at the start and followed, as the pose estimator takes them) each detection's shape is
 tested against the deployment's rhombus seen by that camera (``shape.py``); without them, or
-on frames of another size, the weak-perspective test alone. Each frame is extracted on the
+on frames of another size, the weak-perspective test alone, and the extractor learns the
+camera from the marker for a marker under a highlight (``learned_camera.py``; logged when
+learned). Each frame is extracted on the
 service's own thread, so that a slow one (a marker fitted whole under a shadow: up to 0.3 s)
 holds up no other service sharing the process's event loop.
 """
@@ -31,6 +33,7 @@ from services.vertex_extractor.extractor import (
     warm_up,
 )
 from services.vertex_extractor.learn import load_colour_file
+from services.vertex_extractor.learned_camera import BAND, Solved
 
 
 class Settings(ServiceSettings, ExtractorParams):
@@ -108,6 +111,20 @@ async def _ask_intrinsics(ctx: ServiceContext, follower: IntrinsicsFollower) -> 
         follower.take(replies[0])
 
 
+def _tell_learned(extractor: RhombusExtractor, told: Solved | None, log: logging.Logger
+                  ) -> Solved | None:
+    """Log the camera learned from the marker (no intrinsics) when first learned, and when
+    its focal length moves by more than the band it is used over; returns the one told."""
+    learned = extractor.learned_camera
+    if learned is None or (told is not None and abs(learned.f - told.f) <= BAND * told.f):
+        return told
+    log.info("camera learned from the marker (no intrinsics): focal length %.0f px, principal "
+             "point (%.0f, %.0f) px, from %d views; a marker under a highlight is fitted under "
+             "it (serve camera/intrinsics for the calibrated one)", learned.f, learned.cx,
+             learned.cy, learned.views)
+    return learned
+
+
 async def main(ctx: ServiceContext, config: Settings) -> None:
     bus, log = ctx.bus, ctx.log
     params = config.part(ExtractorParams)
@@ -129,6 +146,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
     # transmitter's heartbeat to the firmware's 0.4 s watchdog among them)
     worker = ThreadPoolExecutor(max_workers=1, thread_name_prefix="vertex-extractor")
     loop = asyncio.get_running_loop()
+    told: Solved | None = None
     try:
         async for frame in frames:
             if config.intrinsics is None and (k := updates.get_nowait()) is not None:
@@ -149,6 +167,7 @@ async def main(ctx: ServiceContext, config: Settings) -> None:
                     extractor.reset()
                     det = Detection(False, reason=f"internal error: {err}")
             bus.put(VERTICES, to_message(det, h.seq, h.stamp_ns, h.width, h.height))
+            told = _tell_learned(extractor, told, log)
     finally:
         worker.shutdown(wait=False, cancel_futures=True)
         if asking is not None:

@@ -135,13 +135,15 @@ def _found_errors(results: list[tuple[np.ndarray | None, np.ndarray]]
 
 
 def hard_conditions(n: int, n_empty: int,
-                    methods: dict[str, Callable[[np.ndarray], np.ndarray | None]]
-                    ) -> tuple[list[Row], list[Row]]:
+                    methods: dict[str, Callable[[np.ndarray], np.ndarray | None]],
+                    highlight_only: dict[str, Callable[[np.ndarray], np.ndarray | None]]
+                    | None = None) -> tuple[list[Row], list[Row]]:
     """Each hazard alone (``scenes.HARD_CONDITIONS``): found, median, p95 and wrong (found
-    with a vertex more than 2 px off, share of all frames) per method, the highlight's views
-    also split by whether an edge's ink clips over half its length (``clipped_edge_share``:
-    such an edge is as hidden as one under an arm); then false detections on ``n_empty``
-    marker-less frames with magenta distractors."""
+    with a vertex more than 2 px off, share of all frames) per method (and the highlight's
+    views per ``highlight_only`` method too), the highlight's views also split by whether an
+    edge's ink clips over half its length (``clipped_edge_share``: such an edge is as hidden
+    as one under an arm); then false detections on ``n_empty`` marker-less frames with
+    magenta distractors."""
     from services.sim.hazards import clipped_edge_share
     from services.sim.scenes import HARD_CONDITIONS, NO_MARKER, hard_views
     rows: list[Row] = []
@@ -158,7 +160,8 @@ def hard_conditions(n: int, n_empty: int,
                 i for i, c in enumerate(clipped) if not c]
             groups[f"{condition}: an edge's ink clipped >= 1/2"] = [
                 i for i, c in enumerate(clipped) if c]
-        for name, method in methods.items():
+        extra = highlight_only if condition == HIGHLIGHT and highlight_only else {}
+        for name, method in {**methods, **extra}.items():
             got, ms = [], []
             for image, _ in frames:
                 start = time.perf_counter()
@@ -249,10 +252,14 @@ def run(quick: bool) -> None:
     shaped = RhombusExtractor()  # the shape test with the renders' intrinsics (shape.py)
     shaped.use_intrinsics(CameraModel.paper())
     with_intrinsics = {"ours, with intrinsics": cold(shaped)}
+    learned = ex.learned_camera  # (from the accuracy rows' frames: no intrinsics given)
+    K = CameraModel.paper().K
+    unlearned = {"ours, before it learns the camera (assumed ones)": cold(RhombusExtractor(
+        ExtractorParams(learn_camera=False)))}
     hard_rows, false_rows = hard_conditions(
         30 if quick else 100, 50 if quick else 200,
         {"ours": ours, **with_intrinsics, **{k: methods[k] for k in (
-            "OpenCV contour + fitLine", "OpenCV contour + cornerSubPix")}})
+            "OpenCV contour + fitLine", "OpenCV contour + cornerSubPix")}}, unlearned)
     progress("vertices: pink cards posed in 3D")
     cards = posed_cards(50 if quick else 200, seed=2026)
     false_rows += [(f"one pink card posed in 3D, no marker ({len(cards)} frames)", name,
@@ -271,7 +278,14 @@ def run(quick: bool) -> None:
             "of edge points, the deployment's rhombus fitted to those it shows (recover.py); "
             "the OpenCV routes get no prior. Last, a marker every route refused is fitted "
             "whole under a clipped highlight (highlight.py) or a cast shadow (shadow.py): "
-            "the max ms column shows what such a frame costs. "
+            "the max ms column shows what such a frame costs. Without intrinsics "
+            "ours has learned the camera from the accuracy rows' frames (learned_camera.py: "
+            + (f"focal length {learned.f:.0f} px, principal point ({learned.cx:.0f}, "
+               f"{learned.cy:.0f}) px; the renders' camera {K[0, 0]:.0f} / {K[1, 1]:.0f} px, "
+               f"({K[0, 2]:.0f}, {K[1, 2]:.0f}) px"
+               if learned is not None else "not learned") + "), and fits the rhombus's pose "
+            "under it where an edge is under a highlight; the row before it learns it "
+            "assumes focal lengths 0.5 and 1.4 x the width, the principal point centred. "
             "Goals: "
             "wrong <= 1 % everywhere; fully visible found >= 95 %, median <= 2 x clean; "
             "occlusion (<= 20 % of the area) found >= 70 %.")

@@ -1,0 +1,352 @@
+"""The camera learned from the marker's own detections, where no intrinsics were given.
+
+Each detection of the rhombus (a planar shape of known proportions) is a homography of it;
+with square pixels and no skew, two such views of different tilts fix the focal length and
+the principal point (Zhang's constraints on the image of the absolute conic, with ω's skew
+term zero and its two diagonal terms equal). Over many detections the camera comes out as
+well as the marker's vertices tell it: from 120 webcam renders' detections (0.1-0.3 px),
+the paper's camera (fx 757, fy 754, principal point (390, 261) px) came out at 766 and
+(402, 265) px, within 1.2 % and 12 px (docs/measured.md "The camera learned from the
+marker").
+
+``CameraLearner`` keeps the scans' confident detections of distinct views and, every
+``SOLVE_EVERY`` new views (less often once a camera is offered), solves the older and the
+newer half of them apart (``solve``: the closed form, then every pose and the three
+intrinsics by Levenberg-Marquardt on the vertices' whitened errors, the poses eliminated);
+it offers their combination (``camera``) where the halves agree within their standard
+errors or within the band used (``AGREE_CHI2``, ``AGREE_PP_W``: one camera, not a blend of
+two after a zoom or a swap). What for: a marker under a highlight whose hidden edge depends
+on the camera (``highlight.fit``) is fitted under the learned camera's focal length ±
+``BAND`` instead of assumed ones over the range webcams have. Pure numpy and OpenCV; no bus.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from services.core.camera import CameraModel
+
+MIN_VIEWS = 40           # distinct views before the first solve (two halves of 20)
+SOLVE_EVERY = 20         # new views between solves; doubled after each solve offered, up to
+MAX_SOLVE_EVERY = 80     # this (a camera changed is noticed within as many new views)
+MIN_SOLVED = 12          # a solve's views, at least, after those far off are left out
+MAX_VIEWS = 120          # the newest views kept
+NEW_VIEW_PX = 5.0        # a view counts as new when a vertex moved this far (px) from the last
+MAX_SIGMA_PX = 0.5       # a detection whose vertex sigma is over this is not learned from
+MAX_SE_F = 0.02          # a solve's focal length's standard error, at most this share
+MAX_SE_PP_W = 0.03       # ... its principal point's, at most this share of the width
+MAX_CHI2 = 4.0           # the inliers' whitened squared error per degree of freedom, at most
+OUTLIER_CHI2 = 72.0      # a view whose 8 whitened errors square to more is left out (3 sigma)
+AGREE_CHI2 = 16.3        # the halves' solves agree: their differences' chi² (3 degrees of
+                         # freedom, by their standard errors) at most this (99.9 %), or ...
+AGREE_PP_W = 0.03        # ... their focal lengths within BAND and principal points within
+                         # this share of the width (their standard errors understate the
+                         # renders' halves' scatter: 757 and 771 px apart at 0.4 % each)
+BAND = 0.03              # the learned focal length's band the highlight's pose is fitted over
+HUBER = 3.0              # whitened errors beyond this weigh as Huber's
+MAX_ITERATIONS = 50       # Levenberg-Marquardt's steps, at most
+FOCAL_RANGE_W = (0.3, 3.0)  # a plausible focal length (x the width)
+PP_RANGE = 0.3           # a plausible principal point: this share of the size from the centre
+
+
+@dataclass(frozen=True)
+class Solved:
+    """A solve: focal length f and principal point (cx, cy) px, their standard errors px,
+    the views used and the inliers' whitened squared error per degree of freedom."""
+
+    f: float
+    cx: float
+    cy: float
+    se: tuple[float, float, float]
+    views: int
+    chi2: float
+
+    def camera(self, width: int, height: int, f: float | None = None) -> CameraModel:
+        """The camera (square pixels, no skew or distortion), at focal length ``f`` px if
+        given."""
+        f = self.f if f is None else f
+        K = np.array([[f, 0.0, self.cx], [0.0, f, self.cy], [0.0, 0.0, 1.0]])
+        return CameraModel(K, np.zeros(5), width, height)
+
+
+def _rotations(r: np.ndarray) -> np.ndarray:
+    """Rotation matrices (n, 3, 3) of rotation vectors r (n, 3) rad."""
+    theta = np.linalg.norm(r, axis=1)
+    k = r / np.maximum(theta, 1e-12)[:, None]
+    K = np.zeros((r.shape[0], 3, 3))
+    K[:, 0, 1], K[:, 0, 2], K[:, 1, 2] = -k[:, 2], k[:, 1], -k[:, 0]
+    K[:, 1, 0], K[:, 2, 0], K[:, 2, 1] = k[:, 2], -k[:, 1], k[:, 0]
+    s, c = np.sin(theta)[:, None, None], np.cos(theta)[:, None, None]
+    return np.eye(3) + s * K + (1.0 - c) * (K @ K)
+
+
+def _closed_form(model_xy: np.ndarray, views: np.ndarray) -> tuple[float, float, float] | None:
+    """Zhang's closed form with zero skew and square pixels: (f, cx, cy) px from the views
+    (n, 4, 2) px of the planar points ``model_xy`` (4, 2) m; None where it has no solution."""
+    rows = []
+    for v in views:
+        H, _ = cv2.findHomography(model_xy, v)
+        if H is None:
+            continue
+        H = H / np.linalg.norm(H[:, :2])
+
+        def term(i: int, j: int, H: np.ndarray = H) -> np.ndarray:
+            a, b = H[:, i], H[:, j]
+            return np.array([a[0] * b[0] + a[1] * b[1], a[0] * b[2] + a[2] * b[0],
+                             a[1] * b[2] + a[2] * b[1], a[2] * b[2]])
+        rows += [term(0, 1), term(0, 0) - term(1, 1)]
+    if len(rows) < 4:
+        return None
+    b = np.linalg.svd(np.array(rows))[2][-1]
+    if abs(b[0]) < 1e-15:
+        return None
+    cx, cy = -b[1] / b[0], -b[2] / b[0]
+    f2 = b[3] / b[0] - cx * cx - cy * cy
+    return (math.sqrt(f2), cx, cy) if f2 > 0 else None
+
+
+def solve(model_m: np.ndarray, views_px: np.ndarray, covs_px2: np.ndarray, width: int,
+          height: int) -> Solved | str:
+    """The camera (square pixels, no skew or distortion) that best explains the views
+    (n, 4, 2) px of the planar rhombus ``model_m`` (4, 3) m (z = 0), each vertex weighted by
+    its covariance (n, 4, 2, 2) px²; or why not. Started from the closed form (else a focal
+    length of the width, the principal point at the centre), with each view's pose from
+    IPPE; views more than 3 sigma off are left out and the rest solved again."""
+    n = views_px.shape[0]
+    if n < MIN_SOLVED:
+        return f"{n} views (at least {MIN_SOLVED})"
+    M = np.asarray(model_m, float)
+    start = _closed_form(M[:, :2], views_px)
+    lo, hi = (r * width for r in FOCAL_RANGE_W)
+    if start is None or not lo <= start[0] <= hi:
+        start = (float(width), 0.5 * (width - 1), 0.5 * (height - 1))
+    try:  # (each vertex's error whitened: L e, with L^T L the covariance's inverse)
+        L = np.linalg.cholesky(np.linalg.inv(covs_px2 + 1e-6 * np.eye(2))).transpose(0, 1, 3, 2)
+    except np.linalg.LinAlgError:
+        return "a view's covariance is not positive definite"
+    keep = np.ones(n, bool)
+    for _ in range(3):
+        got = _refine(M, views_px[keep], L[keep], start)
+        if isinstance(got, str):
+            return got
+        x, view_chi2, se = got
+        outliers = view_chi2 > OUTLIER_CHI2
+        if not outliers.any():
+            break
+        keep[np.flatnonzero(keep)[outliers]] = False
+        if keep.sum() < MIN_SOLVED:
+            return f"{int((~keep).sum())} of {n} views more than 3 sigma off the best camera"
+        start = (x[0], x[1], x[2])
+    inliers = view_chi2[view_chi2 <= OUTLIER_CHI2]
+    m = inliers.size
+    chi2 = float(inliers.sum() / max(2 * m - 3, 1))
+    return Solved(float(x[0]), float(x[1]), float(x[2]), se, m, chi2)
+
+
+def _refine(M: np.ndarray, views: np.ndarray, L: np.ndarray,
+            start: tuple[float, float, float]
+            ) -> tuple[np.ndarray, np.ndarray, tuple[float, float, float]] | str:
+    """Levenberg-Marquardt over (f, cx, cy) and every view's pose (rotation vector rad,
+    translation m), the poses eliminated at each step (the Schur complement: a 3 x 3 system
+    for the intrinsics, a 6 x 6 one per view), each whitened error weighted as Huber's at
+    ``HUBER`` sigma; returns (f, cx, cy), each view's whitened squared error and the
+    intrinsics' standard errors (px)."""
+    n = views.shape[0]
+    K0 = np.array([[start[0], 0.0, start[1]], [0.0, start[0], start[2]], [0.0, 0.0, 1.0]])
+    P = np.empty((n, 6))
+    for i, v in enumerate(views):
+        ok, r, t = cv2.solvePnP(M, v.reshape(-1, 1, 2), K0, None, flags=cv2.SOLVEPNP_IPPE)
+        if not ok:
+            return "a view has no pose"
+        P[i] = np.r_[r.ravel(), t.ravel()]
+    c = np.array(start, float)
+    mx, my = M[:, 0], M[:, 1]
+
+    def whitened(c: np.ndarray, P: np.ndarray) -> np.ndarray:  # (n, 8)
+        R = _rotations(P[:, :3])
+        X = R[:, None, :, 0] * mx[None, :, None] + R[:, None, :, 1] * my[None, :, None] \
+            + P[:, None, 3:]  # (n, 4, 3) m, the camera's frame
+        z = np.maximum(X[..., 2], 1e-6)
+        e = np.stack([c[0] * X[..., 0] / z + c[1], c[0] * X[..., 1] / z + c[2]], -1) - views
+        return np.einsum("nkij,nkj->nki", L, e).reshape(n, 8)
+
+    def cost(r: np.ndarray) -> float:
+        a = np.abs(r)
+        return float(np.where(a <= HUBER, 0.5 * a * a, HUBER * (a - 0.5 * HUBER)).sum())
+
+    h_c = 1e-4 * max(start[0], 1.0)
+    h_p = np.array([1e-6, 1e-6, 1e-6, 1e-7, 1e-7, 1e-7])
+    r = whitened(c, P)
+    lam = 1e-3
+    for _ in range(MAX_ITERATIONS):
+        Jc = np.empty((n, 8, 3))
+        for j in range(3):
+            d = np.zeros(3)
+            d[j] = h_c
+            Jc[:, :, j] = (whitened(c + d, P) - whitened(c - d, P)) / (2 * h_c)
+        Jp = np.empty((n, 8, 6))
+        for j in range(6):
+            d = np.zeros(6)
+            d[j] = h_p[j]
+            Jp[:, :, j] = (whitened(c, P + d) - whitened(c, P - d)) / (2 * h_p[j])
+        w = np.minimum(1.0, HUBER / np.maximum(np.abs(r), 1e-12))  # (n, 8) IRLS weights
+        App = np.einsum("nki,nk,nkj->nij", Jp, w, Jp)
+        Apc = np.einsum("nki,nk,nkj->nij", Jp, w, Jc)
+        Acc = np.einsum("nki,nk,nkj->ij", Jc, w, Jc)
+        gp = np.einsum("nki,nk,nk->ni", Jp, w, r)
+        gc = np.einsum("nki,nk,nk->i", Jc, w, r)
+        before = cost(r)
+        while True:
+            Dp = App + lam * np.einsum("nii->ni", App)[:, :, None] * np.eye(6)
+            try:
+                X = np.linalg.solve(Dp, np.concatenate([Apc, gp[:, :, None]], 2))
+            except np.linalg.LinAlgError:
+                return "a view's pose is degenerate"
+            S = Acc + lam * np.diag(np.diag(Acc)) - np.einsum("nji,njk->ik", Apc, X[:, :, :3])
+            rhs = gc - np.einsum("nji,nj->i", Apc, X[:, :, 3])
+            try:
+                dc = -np.linalg.solve(S, rhs)
+            except np.linalg.LinAlgError:
+                return "the views do not fix the camera (all seen face on?)"
+            dP = -X[:, :, 3] - np.einsum("nij,j->ni", X[:, :, :3], dc)
+            r_new = whitened(c + dc, P + dP)
+            if np.isfinite(r_new).all() and cost(r_new) < before:
+                c, P, r = c + dc, P + dP, r_new
+                lam = max(lam / 3.0, 1e-9)
+                break
+            lam *= 10.0
+            if lam > 1e8:
+                break
+        if lam > 1e8 or (before - cost(r)) < 1e-6 * max(before, 1.0):
+            break
+    # the intrinsics' covariance (unit weights): the Schur complement of the poses' blocks
+    App = np.einsum("nki,nkj->nij", Jp, Jp)
+    Apc = np.einsum("nki,nkj->nij", Jp, Jc)
+    try:
+        S = np.einsum("nki,nkj->ij", Jc, Jc) - np.einsum(
+            "nji,njk->ik", Apc, np.linalg.solve(App, Apc))
+        view_chi2 = (r ** 2).sum(1)
+        cov = np.linalg.inv(S) * max(float(view_chi2.sum()) / max(2 * n - 3, 1), 1.0)
+    except np.linalg.LinAlgError:
+        return "the views do not fix the camera (all seen face on?)"
+    se = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    return c, view_chi2, (float(se[0]), float(se[1]), float(se[2]))
+
+
+def judge(s: Solved, width: int, height: int) -> str:
+    """Why a solve is not a usable camera, or ''."""
+    lo, hi = (r * width for r in FOCAL_RANGE_W)
+    if not lo <= s.f <= hi:
+        return f"its focal length {s.f:.0f} px is outside {lo:.0f}-{hi:.0f} px"
+    if abs(s.cx - 0.5 * (width - 1)) > PP_RANGE * width or \
+            abs(s.cy - 0.5 * (height - 1)) > PP_RANGE * height:
+        return f"its principal point ({s.cx:.0f}, {s.cy:.0f}) px is far off the centre"
+    if s.se[0] > MAX_SE_F * s.f:
+        return f"its focal length is uncertain (± {s.se[0]:.0f} px)"
+    if max(s.se[1], s.se[2]) > MAX_SE_PP_W * width:
+        return f"its principal point is uncertain (± {max(s.se[1], s.se[2]):.0f} px)"
+    if s.chi2 > MAX_CHI2:
+        return f"the views fit it poorly (chi² {s.chi2:.1f} per degree of freedom)"
+    return ""
+
+
+def _disagreement(a: Solved, b: Solved) -> float:
+    """The chi² of two solves' differences in (f, cx, cy), by their standard errors."""
+    return sum((x - y) ** 2 / max(sa * sa + sb * sb, 1e-12)
+               for x, y, sa, sb in zip((a.f, a.cx, a.cy), (b.f, b.cx, b.cy), a.se, b.se,
+                                       strict=True))
+
+
+def combined(a: Solved, b: Solved) -> Solved:
+    """Two solves of disjoint views as one: each intrinsic their inverse-variance weighted
+    mean, its standard error combined; the views summed, the chi² their views' mean."""
+    est, se = [], []
+    for x, y, sa, sb in zip((a.f, a.cx, a.cy), (b.f, b.cx, b.cy), a.se, b.se, strict=True):
+        wa, wb = 1.0 / max(sa * sa, 1e-12), 1.0 / max(sb * sb, 1e-12)
+        est.append((wa * x + wb * y) / (wa + wb))
+        se.append(1.0 / math.sqrt(wa + wb))
+    n = a.views + b.views
+    return Solved(est[0], est[1], est[2], (se[0], se[1], se[2]), n,
+                  (a.chi2 * a.views + b.chi2 * b.views) / n)
+
+
+class CameraLearner:
+    """The camera of ``width`` x ``height`` px frames, learned from detections of the
+    rhombus ``model_m`` (4, 3) m (``add``); ``camera()`` once the halves of a solve agree.
+    The views kept are solved in two halves, the older when a solve is due and the newer at
+    the next ``add``: no frame pays more than one half (a solve of 20-60 views: 10-15 ms)."""
+
+    def __init__(self, model_m: np.ndarray, width: int, height: int) -> None:
+        self.model_m = np.asarray(model_m, float)
+        self.width, self.height = width, height
+        self._views: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=MAX_VIEWS)
+        self._new = 0
+        self._every = SOLVE_EVERY
+        #: the older half's solve and the newer half's views, until the next ``add``
+        self._pending: tuple[Solved | str, np.ndarray, np.ndarray] | None = None
+        #: the newest solve, or why it is not a usable camera
+        self.last: Solved | str = f"fewer than {MIN_VIEWS} distinct views of the marker"
+        self._agreed: Solved | None = None
+
+    def add(self, vertices_px: np.ndarray, cov_px2: np.ndarray) -> None:
+        """A detection's vertices (4, 2) px and covariance (4, 2, 2) px²: kept if confident
+        (every vertex's sigma at most ``MAX_SIGMA_PX``) and a new view; a solve's newer half
+        solved if one is under way, else its older half begun when one is due."""
+        if self._pending is not None:
+            self._finish(*self._pending)
+            self._pending = None
+        if not (np.isfinite(vertices_px).all() and np.isfinite(cov_px2).all()) or \
+                float((cov_px2[:, 0, 0] + cov_px2[:, 1, 1]).max()) > MAX_SIGMA_PX ** 2:
+            return
+        if self._views and float(np.abs(vertices_px - self._views[-1][0]).max()) < NEW_VIEW_PX:
+            return
+        self._views.append((np.array(vertices_px, float), np.array(cov_px2, float)))
+        self._new += 1
+        if len(self._views) >= MIN_VIEWS and self._new >= self._every:
+            self._new = 0
+            views = np.array([v for v, _ in self._views])
+            covs = np.array([c for _, c in self._views])
+            half = len(views) // 2
+            older = solve(self.model_m, views[:half], covs[:half], self.width, self.height)
+            self._pending = (older, views[half:], covs[half:])
+
+    def _finish(self, older: Solved | str, views: np.ndarray, covs: np.ndarray) -> None:
+        """A solve's newer half (``views``, ``covs``) solved and judged with the older: the
+        camera is offered where their combination is a usable camera and they agree
+        (``AGREE_CHI2``, else within ``BAND`` and ``AGREE_PP_W``: not a blend of two cameras,
+        after a zoom or a swap); else none."""
+        newer = solve(self.model_m, views, covs, self.width, self.height)
+        self._agreed = None
+        every, self._every = self._every, SOLVE_EVERY
+        if isinstance(older, str) or isinstance(newer, str):
+            self.last = f"a half of the views: {older if isinstance(older, str) else newer}"
+            return
+        whole = combined(older, newer)
+        if why := judge(whole, self.width, self.height):
+            self.last = why
+        elif _disagreement(older, newer) > AGREE_CHI2 and (
+                abs(older.f - newer.f) > BAND * whole.f or math.hypot(
+                    older.cx - newer.cx, older.cy - newer.cy) > AGREE_PP_W * self.width):
+            self.last = (f"the older and newer views disagree: focal length {older.f:.0f} "
+                         f"and {newer.f:.0f} px, principal point ({older.cx:.0f}, "
+                         f"{older.cy:.0f}) and ({newer.cx:.0f}, {newer.cy:.0f}) px")
+        else:
+            self.last = self._agreed = whole
+            self._every = min(2 * every, MAX_SOLVE_EVERY)
+
+    def camera(self) -> Solved | None:
+        """The newest solve, if it is a usable camera whose halves agree."""
+        return self._agreed
+
+    def cameras(self) -> list[CameraModel]:
+        """The learned camera at the ends of its focal length's band (``BAND``); none until
+        learned."""
+        s = self._agreed
+        if s is None:
+            return []
+        return [s.camera(self.width, self.height, s.f * (1.0 + k * BAND)) for k in (-1, 1)]
