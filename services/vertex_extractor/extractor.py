@@ -315,8 +315,9 @@ class ExtractorParams(BaseModel):
     learn_camera: bool = Field(default=True, description=(
         "without intrinsics, the camera is learned from the scans' confident detections of "
         "the marker (square pixels, no distortion: its focal length and principal point, "
-        "learned_camera.py: after 40 distinct views, then every 20-80 new ones, two frames "
-        "pay 10-15 ms each), and once the older and newer halves of its views agree, a marker "
+        "learned_camera.py: after 40 distinct views, then every 20-80 new ones, a solve worked "
+        "on over 10-20 frames, up to 6 ms each), and once the older and newer halves of its views "
+        "agree, a marker "
         "under a highlight is fitted as the rhombus's pose under it (its focal length +- 3 %) "
         "instead of the two assumed cameras"))
 

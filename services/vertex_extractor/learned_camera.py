@@ -11,8 +11,9 @@ marker").
 
 ``CameraLearner`` keeps the scans' confident detections of distinct views and, every
 ``SOLVE_EVERY`` new views (less often once a camera is offered), solves the older and the
-newer half of them apart (``solve``: the closed form, then every pose and the three
-intrinsics by Levenberg-Marquardt on the vertices' whitened errors, the poses eliminated);
+newer half of them apart, a few steps at each detection (``solve``: the closed form, then
+every pose and the three intrinsics by Levenberg-Marquardt on the vertices' whitened errors,
+the poses eliminated);
 it offers their combination (``camera``) where the halves agree within their standard
 errors or within the band used (``AGREE_CHI2``, ``AGREE_PP_W``: one camera, not a blend of
 two after a zoom or a swap). What for: a marker under a highlight whose hidden edge depends
@@ -23,19 +24,24 @@ on the camera (``highlight.fit``) is fitted under the learned camera's focal len
 from __future__ import annotations
 
 import math
-from collections import deque
+from collections.abc import Generator
 from dataclasses import dataclass
+from typing import TypeVar
 
 import cv2
 import numpy as np
 
 from services.core.camera import CameraModel
 
+T = TypeVar("T")
+
 MIN_VIEWS = 40           # distinct views before the first solve (two halves of 20)
 SOLVE_EVERY = 20         # new views between solves; doubled after each solve offered, up to
 MAX_SOLVE_EVERY = 80     # this (a camera changed is noticed within as many new views)
 MIN_SOLVED = 12          # a solve's views, at least, after those far off are left out
 MAX_VIEWS = 120          # the newest views kept
+STEPS_PER_ADD = 3        # a solve under way is worked on this many steps a detection (up to
+                         # 6 ms a detection: a solve of both halves over 10-20 frames)
 NEW_VIEW_PX = 5.0        # a view counts as new when a vertex moved this far (px) from the last
 MAX_SIGMA_PX = 0.5       # a detection whose vertex sigma is over this is not learned from
 MAX_SE_F = 0.02          # a solve's focal length's standard error, at most this share
@@ -114,9 +120,26 @@ def solve(model_m: np.ndarray, views_px: np.ndarray, covs_px2: np.ndarray, width
           height: int) -> Solved | str:
     """The camera (square pixels, no skew or distortion) that best explains the views
     (n, 4, 2) px of the planar rhombus ``model_m`` (4, 3) m (z = 0), each vertex weighted by
-    its covariance (n, 4, 2, 2) px²; or why not. Started from the closed form (else a focal
-    length of the width, the principal point at the centre), with each view's pose from
-    IPPE; views more than 3 sigma off are left out and the rest solved again."""
+    its covariance (n, 4, 2, 2) px²; or why not (``solving`` run to its end)."""
+    return _run(solving(model_m, views_px, covs_px2, width, height))
+
+
+def _run(work: Generator[None, None, T]) -> T:
+    """A generator's return value, run to its end."""
+    while True:
+        try:
+            next(work)
+        except StopIteration as done:
+            return done.value  # type: ignore[no-any-return]
+
+
+def solving(model_m: np.ndarray, views_px: np.ndarray, covs_px2: np.ndarray, width: int,
+            height: int) -> Generator[None, None, Solved | str]:
+    """``solve`` one step at a time (it yields after the start and after each
+    Levenberg-Marquardt step: a frame pays a few steps, not a whole solve). Started from the
+    closed form (else a focal length of the width, the principal point at the centre), with
+    each view's pose from IPPE; views more than 3 sigma off are left out and the rest solved
+    again."""
     n = views_px.shape[0]
     if n < MIN_SOLVED:
         return f"{n} views (at least {MIN_SOLVED})"
@@ -131,7 +154,7 @@ def solve(model_m: np.ndarray, views_px: np.ndarray, covs_px2: np.ndarray, width
         return "a view's covariance is not positive definite"
     keep = np.ones(n, bool)
     for _ in range(3):
-        got = _refine(M, views_px[keep], L[keep], start)
+        got = yield from _refine(M, views_px[keep], L[keep], start)
         if isinstance(got, str):
             return got
         x, view_chi2, se = got
@@ -150,12 +173,13 @@ def solve(model_m: np.ndarray, views_px: np.ndarray, covs_px2: np.ndarray, width
 
 def _refine(M: np.ndarray, views: np.ndarray, L: np.ndarray,
             start: tuple[float, float, float]
-            ) -> tuple[np.ndarray, np.ndarray, tuple[float, float, float]] | str:
+            ) -> Generator[None, None,
+                           tuple[np.ndarray, np.ndarray, tuple[float, float, float]] | str]:
     """Levenberg-Marquardt over (f, cx, cy) and every view's pose (rotation vector rad,
     translation m), the poses eliminated at each step (the Schur complement: a 3 x 3 system
     for the intrinsics, a 6 x 6 one per view), each whitened error weighted as Huber's at
     ``HUBER`` sigma; returns (f, cx, cy), each view's whitened squared error and the
-    intrinsics' standard errors (px)."""
+    intrinsics' standard errors (px). Yields after the poses' start and after each step."""
     n = views.shape[0]
     K0 = np.array([[start[0], 0.0, start[1]], [0.0, start[0], start[2]], [0.0, 0.0, 1.0]])
     P = np.empty((n, 6))
@@ -164,6 +188,7 @@ def _refine(M: np.ndarray, views: np.ndarray, L: np.ndarray,
         if not ok:
             return "a view has no pose"
         P[i] = np.r_[r.ravel(), t.ravel()]
+    yield  # (the poses started: 30 µs a view)
     c = np.array(start, float)
     mx, my = M[:, 0], M[:, 1]
 
@@ -224,6 +249,7 @@ def _refine(M: np.ndarray, views: np.ndarray, L: np.ndarray,
                 break
         if lam > 1e8 or (before - cost(r)) < 1e-6 * max(before, 1.0):
             break
+        yield
     # the intrinsics' covariance (unit weights): the Schur complement of the poses' blocks
     App = np.einsum("nki,nkj->nij", Jp, Jp)
     Apc = np.einsum("nki,nkj->nij", Jp, Jc)
@@ -278,49 +304,66 @@ def combined(a: Solved, b: Solved) -> Solved:
 class CameraLearner:
     """The camera of ``width`` x ``height`` px frames, learned from detections of the
     rhombus ``model_m`` (4, 3) m (``add``); ``camera()`` once the halves of a solve agree.
-    The views kept are solved in two halves, the older when a solve is due and the newer at
-    the next ``add``: no frame pays more than one half (a solve of 20-60 views: 10-15 ms)."""
+    A solve due is worked on ``STEPS_PER_ADD`` steps at each ``add`` (its older half, then
+    its newer, then judged): no frame pays more than a few milliseconds for it."""
 
     def __init__(self, model_m: np.ndarray, width: int, height: int) -> None:
         self.model_m = np.asarray(model_m, float)
         self.width, self.height = width, height
-        self._views: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=MAX_VIEWS)
+        # the views kept, a ring (the oldest overwritten): vertices px and covariances px²
+        self._vertices = np.empty((MAX_VIEWS, 4, 2))
+        self._covs = np.empty((MAX_VIEWS, 4, 2, 2))
+        self._kept = 0  # views kept, at most MAX_VIEWS
+        self._next = 0  # the ring's slot for the next view
         self._new = 0
         self._every = SOLVE_EVERY
-        #: the older half's solve and the newer half's views, until the next ``add``
-        self._pending: tuple[Solved | str, np.ndarray, np.ndarray] | None = None
+        self._work: Generator[None, None, None] | None = None  # the solve under way
         #: the newest solve, or why it is not a usable camera
         self.last: Solved | str = f"fewer than {MIN_VIEWS} distinct views of the marker"
         self._agreed: Solved | None = None
 
     def add(self, vertices_px: np.ndarray, cov_px2: np.ndarray) -> None:
         """A detection's vertices (4, 2) px and covariance (4, 2, 2) px²: kept if confident
-        (every vertex's sigma at most ``MAX_SIGMA_PX``) and a new view; a solve's newer half
-        solved if one is under way, else its older half begun when one is due."""
-        if self._pending is not None:
-            self._finish(*self._pending)
-            self._pending = None
+        (every vertex's sigma at most ``MAX_SIGMA_PX``) and a new view (a vertex at least
+        ``NEW_VIEW_PX`` from where it is in every view kept); a solve under way is worked on,
+        or one begun when due."""
+        if self._work is not None:
+            for _ in range(STEPS_PER_ADD):
+                try:
+                    next(self._work)
+                except StopIteration:
+                    self._work = None
+                    break
+        last = self._vertices[self._next - 1]  # (a tracked marker: mostly where it was)
+        if self._kept and float(np.abs(last - vertices_px).max()) < NEW_VIEW_PX:
+            return
         if not (np.isfinite(vertices_px).all() and np.isfinite(cov_px2).all()) or \
                 float((cov_px2[:, 0, 0] + cov_px2[:, 1, 1]).max()) > MAX_SIGMA_PX ** 2:
             return
-        if self._views and float(np.abs(vertices_px - self._views[-1][0]).max()) < NEW_VIEW_PX:
+        if self._kept and float(np.abs(self._vertices[:self._kept] - vertices_px).max(
+                axis=(1, 2)).min()) < NEW_VIEW_PX:
             return
-        self._views.append((np.array(vertices_px, float), np.array(cov_px2, float)))
+        self._vertices[self._next] = vertices_px
+        self._covs[self._next] = cov_px2
+        self._next = (self._next + 1) % MAX_VIEWS
+        self._kept = min(self._kept + 1, MAX_VIEWS)
         self._new += 1
-        if len(self._views) >= MIN_VIEWS and self._new >= self._every:
+        if self._work is None and self._kept >= MIN_VIEWS and self._new >= self._every:
             self._new = 0
-            views = np.array([v for v, _ in self._views])
-            covs = np.array([c for _, c in self._views])
-            half = len(views) // 2
-            older = solve(self.model_m, views[:half], covs[:half], self.width, self.height)
-            self._pending = (older, views[half:], covs[half:])
+            order = np.roll(np.arange(self._kept), -self._next if self._kept == MAX_VIEWS
+                            else 0)  # (oldest first)
+            self._work = self._solving(self._vertices[order], self._covs[order])
 
-    def _finish(self, older: Solved | str, views: np.ndarray, covs: np.ndarray) -> None:
-        """A solve's newer half (``views``, ``covs``) solved and judged with the older: the
-        camera is offered where their combination is a usable camera and they agree
-        (``AGREE_CHI2``, else within ``BAND`` and ``AGREE_PP_W``: not a blend of two cameras,
-        after a zoom or a swap); else none."""
-        newer = solve(self.model_m, views, covs, self.width, self.height)
+    def _solving(self, views: np.ndarray, covs: np.ndarray) -> Generator[None, None, None]:
+        """The older and newer halves of ``views`` (with ``covs``) solved apart, step by step,
+        and judged: the camera is offered where their combination is a usable camera and
+        they agree (``AGREE_CHI2``, else within ``BAND`` and ``AGREE_PP_W``: not a blend of
+        two cameras, after a zoom or a swap); else none."""
+        half = len(views) // 2
+        older = yield from solving(self.model_m, views[:half], covs[:half], self.width,
+                                   self.height)
+        newer = yield from solving(self.model_m, views[half:], covs[half:], self.width,
+                                   self.height)
         self._agreed = None
         every, self._every = self._every, SOLVE_EVERY
         if isinstance(older, str) or isinstance(newer, str):
