@@ -205,6 +205,10 @@ def test_without_intrinsics_the_camera_learned_from_the_marker_gives_the_hidden_
     assert ex.learned_camera is learned
     ex.use_intrinsics(camera)
     assert ex.learned_camera is None
+    ex.use_intrinsics(None)  # (intrinsics withdrawn: learned afresh, nothing yet)
+    assert ex.learned_camera is None
+    ex.reset()
+    assert not ex.extract(image).found
 
 
 def test_assumed_cameras_centre_the_principal_point():

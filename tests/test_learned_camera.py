@@ -86,6 +86,7 @@ def test_the_learner_offers_a_camera_once_its_halves_agree_from_distinct_confide
     for _ in range(learned_camera.MIN_VIEWS):  # not numbers: not learned from, no harm done
         learner.add(np.full((4, 2), np.nan), covs[0])
         learner.add(views[1], np.full((4, 2, 2), np.inf))
+        learner.add(views[1], -covs[1])  # (no covariance: not positive definite)
     assert learner.camera() is None and learner.cameras() == []
     last = learned_camera.MIN_VIEWS - 1
     for v, c in zip(views[1:last], covs[1:], strict=False):
@@ -126,6 +127,22 @@ def test_the_learner_never_offers_a_camera_whose_solves_disagree() -> None:
         [None if s is None else round(s.f) for s in offered]
     assert any(s is None for s in offered)  # (the blends)
     assert offered[-1] is not None, learner.last
+
+
+def test_a_half_seen_face_on_agrees_with_nothing() -> None:
+    """The older half's views all but face on (a camera of 600 px), the newer half's tilted
+    (757 px): the face-on half fixes no camera, so none is offered, though its standard
+    errors are too wide to disagree."""
+    a, ca = _views(learned_camera.MIN_VIEWS // 2, 600.0, 330.0, 250.0, seed=8, max_tilt_deg=6.0)
+    b, cb = _views(learned_camera.MIN_VIEWS // 2, 757.0, 390.0, 260.0, seed=9)
+    learner = CameraLearner(RHOMBUS_M, W, H)
+    for v, c in zip(np.concatenate([a, b]), np.concatenate([ca, cb]), strict=True):
+        learner.add(v, c)
+    for _ in range(100):  # (the solve due worked on to its end)
+        learner.add(b[-1], cb[-1])
+    assert learner.camera() is None
+    assert isinstance(learner.last, str) and learner.last.startswith("a half of the views"), \
+        learner.last
 
 
 def test_the_service_logs_the_learned_camera_when_learned_and_when_it_moves(

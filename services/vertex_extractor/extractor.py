@@ -305,8 +305,9 @@ class ExtractorParams(BaseModel):
         "on its blob, is fitted whole with the pixels near the clipped ones left out, taken "
         "only where every edge is seen over a fifth of its length and no vertex is too "
         "uncertain, else as the rhombus's pose that the edges seen fix (without intrinsics "
-        "under two assumed cameras, focal lengths 0.5 and 1.4 times the frame's width, "
-        "taken where they agree); and a marker the scans "
+        "under two cameras, taken where they agree: the camera learned from the marker at its "
+        "focal length +- 3 % (learn_camera), or before it is learned focal lengths 0.5 and "
+        "1.4 times the frame's width); and a marker the scans "
         "found with clipped white near a vertex is checked by that fit, which replaces "
         "their vertices where it moves one by over 1 px, or refuses the marker where it is "
         "unsure of any vertex (highlight.py; 20 ms a fit at the median, up to 0.2 s, with "
@@ -411,6 +412,8 @@ class RhombusExtractor:
         (the default, and on frames of another size)."""
         self._shape = None if camera is None else ShapeTest(camera, geometry,
                                                                   self.params.shape)
+        if camera is not None:  # (nothing is learned with intrinsics; without, afresh)
+            self._learner = None
         slack = self.params.shape.weak_slack_deg
 
         def loose(p: ExtractorParams) -> ExtractorParams:
@@ -639,6 +642,7 @@ class RhombusExtractor:
         else why not (the scans' refusal stands)."""
         c = self.params.colour
         learned = self._learner.cameras() if self._learner is not None and \
+            self._shape is None and \
             (self._learner.width, self._learner.height) == image.shape[1::-1] else []
         camera, model_m = (test.camera, test.marker_points) if test is not None else \
             (None, self._marker_m)

@@ -252,14 +252,14 @@ def run(quick: bool) -> None:
     shaped = RhombusExtractor()  # the shape test with the renders' intrinsics (shape.py)
     shaped.use_intrinsics(CameraModel.paper())
     with_intrinsics = {"ours, with intrinsics": cold(shaped)}
-    learned = ex.learned_camera  # (from the accuracy rows' frames: no intrinsics given)
-    K = CameraModel.paper().K
     unlearned = {"ours, before it learns the camera (assumed ones)": cold(RhombusExtractor(
         ExtractorParams(learn_camera=False)))}
     hard_rows, false_rows = hard_conditions(
         30 if quick else 100, 50 if quick else 200,
         {"ours": ours, **with_intrinsics, **{k: methods[k] for k in (
             "OpenCV contour + fitLine", "OpenCV contour + cornerSubPix")}}, unlearned)
+    learned = ex.learned_camera  # (from the frames it saw: no intrinsics given)
+    K = CameraModel.paper().K
     progress("vertices: pink cards posed in 3D")
     cards = posed_cards(50 if quick else 200, seed=2026)
     false_rows += [(f"one pink card posed in 3D, no marker ({len(cards)} frames)", name,
@@ -279,7 +279,8 @@ def run(quick: bool) -> None:
             "the OpenCV routes get no prior. Last, a marker every route refused is fitted "
             "whole under a clipped highlight (highlight.py) or a cast shadow (shadow.py): "
             "the max ms column shows what such a frame costs. Without intrinsics "
-            "ours has learned the camera from the accuracy rows' frames (learned_camera.py: "
+            "ours has learned the camera from the frames it saw, the accuracy rows' first "
+            "(learned_camera.py; by the end "
             + (f"focal length {learned.f:.0f} px, principal point ({learned.cx:.0f}, "
                f"{learned.cy:.0f}) px; the renders' camera {K[0, 0]:.0f} / {K[1, 1]:.0f} px, "
                f"({K[0, 2]:.0f}, {K[1, 2]:.0f}) px"
