@@ -56,6 +56,13 @@ class CameraModel:
         return CameraModel(K, self.dist.copy(), width, height, self.rms_px)
 
     @classmethod
+    def pinhole(cls, f: float, cx: float, cy: float, width: int, height: int) -> CameraModel:
+        """Square pixels, no skew or distortion: focal length ``f`` and principal point
+        (``cx``, ``cy``), px."""
+        return cls(np.array([[f, 0.0, cx], [0.0, f, cy], [0.0, 0.0, 1.0]]), np.zeros(5),
+                   width, height)
+
+    @classmethod
     def paper(cls) -> CameraModel:
         return cls(np.array(PAPER_K, dtype=np.float64), np.zeros(5), 640, 480)
 

@@ -412,7 +412,7 @@ class RhombusExtractor:
         (the default, and on frames of another size)."""
         self._shape = None if camera is None else ShapeTest(camera, geometry,
                                                                   self.params.shape)
-        if camera is not None:  # (nothing is learned with intrinsics; without, afresh)
+        if camera is not None:  # (nothing is learned with intrinsics: ``_learn_from``)
             self._learner = None
         slack = self.params.shape.weak_slack_deg
 
@@ -437,8 +437,7 @@ class RhombusExtractor:
         """The camera learned from the marker (no intrinsics, ``learn_camera``), once the
         older and newer halves of the views it has kept agree; None before, or with
         intrinsics."""
-        return None if self._learner is None or self._shape is not None else \
-            self._learner.camera()
+        return None if self._learner is None else self._learner.camera()
 
     def reset(self) -> None:
         """Forget the last marker (the next frame is searched cold); the camera learned from
@@ -642,7 +641,6 @@ class RhombusExtractor:
         else why not (the scans' refusal stands)."""
         c = self.params.colour
         learned = self._learner.cameras() if self._learner is not None and \
-            self._shape is None and \
             (self._learner.width, self._learner.height) == image.shape[1::-1] else []
         camera, model_m = (test.camera, test.marker_points) if test is not None else \
             (None, self._marker_m)

@@ -326,9 +326,8 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
 def assumed_camera(width: int, height: int, focal_w: float) -> CameraModel:
     """A camera of ``width`` x ``height`` px with no distortion, square pixels, the principal
     point at the image's centre and a focal length of ``focal_w`` times the width (px)."""
-    f = focal_w * width
-    K = np.array([[f, 0.0, 0.5 * (width - 1)], [0.0, f, 0.5 * (height - 1)], [0.0, 0.0, 1.0]])
-    return CameraModel(K, np.zeros(5), width, height)
+    return CameraModel.pinhole(focal_w * width, 0.5 * (width - 1), 0.5 * (height - 1), width,
+                               height)
 
 
 def _as_pose(residual: Callable[[np.ndarray, bool], tuple[np.ndarray, np.ndarray | None]],

@@ -30,6 +30,7 @@ from typing import TypeVar
 import cv2
 import numpy as np
 
+from services.calibration.zhang import v_row
 from services.core.camera import CameraModel
 
 T = TypeVar("T")
@@ -78,9 +79,7 @@ class Solved:
     def camera(self, width: int, height: int, f: float | None = None) -> CameraModel:
         """The camera (square pixels, no skew or distortion), at focal length ``f`` px if
         given."""
-        f = self.f if f is None else f
-        K = np.array([[f, 0.0, self.cx], [0.0, f, self.cy], [0.0, 0.0, 1.0]])
-        return CameraModel(K, np.zeros(5), width, height)
+        return CameraModel.pinhole(self.f if f is None else f, self.cx, self.cy, width, height)
 
 
 def _rotations(r: np.ndarray) -> np.ndarray:
@@ -103,12 +102,8 @@ def _closed_form(model_xy: np.ndarray, views: np.ndarray) -> tuple[float, float,
         if H is None:
             continue
         H = H / np.linalg.norm(H[:, :2])
-
-        def term(i: int, j: int, H: np.ndarray = H) -> np.ndarray:
-            a, b = H[:, i], H[:, j]
-            return np.array([a[0] * b[0] + a[1] * b[1], a[0] * b[2] + a[2] * b[0],
-                             a[1] * b[2] + a[2] * b[1], a[2] * b[2]])
-        rows += [term(0, 1), term(0, 0) - term(1, 1)]
+        for v in (v_row(H, 0, 1), v_row(H, 0, 0) - v_row(H, 1, 1)):
+            rows.append([v[0] + v[2], v[3], v[4], v[5]])  # (B12 = 0, B22 = B11)
     if len(rows) < 4:
         return None
     b = np.linalg.svd(np.array(rows))[2][-1]
