@@ -189,12 +189,15 @@ def test_without_intrinsics_the_camera_learned_from_the_marker_gives_the_hidden_
     assumed cameras leave 4.1 px apart (``highlight_7_81``, refused above) is then found as
     the rhombus's pose under the learned camera (its focal length ± 3 %) within 1 px and 3
     sigmas (0.75 px at 0.76 px). The camera stays through ``reset``; intrinsics take over from
-    it."""
+    it; with ``learn_camera`` off nothing is learned."""
     from services.sim.scenes import random_views
     ex = RhombusExtractor()
+    off = RhombusExtractor(ExtractorParams(learn_camera=False))
     for view in random_views(100, seed=8, distance_m=(0.2, 0.8), webcam=True):
-        ex.reset()
-        ex.extract(view.rendered.image)
+        for extractor in (ex, off):
+            extractor.reset()
+            extractor.extract(view.rendered.image)
+    assert off.learned_camera is None  # (learn_camera off: the assumed cameras stay)
     learned, paper = ex.learned_camera, CameraModel.paper()
     assert learned is not None
     assert abs(learned.f - paper.K[0, 0]) < 0.03 * paper.K[0, 0]
