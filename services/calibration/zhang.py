@@ -77,8 +77,7 @@ def homography(model_xy: np.ndarray, image_xy: np.ndarray, refine: bool = True) 
     return H
 
 
-def v_row(H: np.ndarray, i: int, j: int) -> np.ndarray:
-    """Zhang's v_ij: h_i^T B h_j = v_ij . (B11, B12, B22, B13, B23, B33)."""
+def _v(H: np.ndarray, i: int, j: int) -> np.ndarray:
     hi, hj = H[:, i], H[:, j]
     return np.array([hi[0] * hj[0], hi[0] * hj[1] + hi[1] * hj[0], hi[1] * hj[1],
                      hi[2] * hj[0] + hi[0] * hj[2], hi[2] * hj[1] + hi[1] * hj[2],
@@ -89,7 +88,7 @@ def intrinsics_from_homographies(Hs: list[np.ndarray]) -> np.ndarray:
     """Closed-form A from V b = 0 (Zhang, section 3.1 and appendix B)."""
     rows = []
     for H in Hs:
-        rows += [v_row(H, 0, 1), v_row(H, 0, 0) - v_row(H, 1, 1)]
+        rows += [_v(H, 0, 1), _v(H, 0, 0) - _v(H, 1, 1)]
     if len(Hs) == 2:
         rows.append(np.array([0, 1, 0, 0, 0, 0.0]))  # gamma = 0
     elif len(Hs) < 2:

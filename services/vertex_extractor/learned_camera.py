@@ -30,7 +30,6 @@ from typing import TypeVar
 import cv2
 import numpy as np
 
-from services.calibration.zhang import v_row
 from services.core.camera import CameraModel
 
 T = TypeVar("T")
@@ -102,8 +101,14 @@ def _closed_form(model_xy: np.ndarray, views: np.ndarray) -> tuple[float, float,
         if H is None:
             continue
         H = H / np.linalg.norm(H[:, :2])
-        for v in (v_row(H, 0, 1), v_row(H, 0, 0) - v_row(H, 1, 1)):
-            rows.append([v[0] + v[2], v[3], v[4], v[5]])  # (B12 = 0, B22 = B11)
+
+        def term(i: int, j: int, H: np.ndarray = H) -> np.ndarray:
+            """Zhang's v_ij with B12 = 0 and B22 = B11: (B11, B13, B23, B33). (Not
+            ``calibration.zhang``'s: a service imports no other service's modules.)"""
+            a, b = H[:, i], H[:, j]
+            return np.array([a[0] * b[0] + a[1] * b[1], a[0] * b[2] + a[2] * b[0],
+                             a[1] * b[2] + a[2] * b[1], a[2] * b[2]])
+        rows += [term(0, 1), term(0, 0) - term(1, 1)]
     if len(rows) < 4:
         return None
     b = np.linalg.svd(np.array(rows))[2][-1]
