@@ -86,6 +86,60 @@ def test_tracking_uses_the_previous_frame_and_agrees_with_a_cold_search():
     assert np.abs(cold.vertices_px - tracked.vertices_px).max() < 1e-6
 
 
+def test_a_near_marker_is_measured_on_at_most_max_columns_columns():
+    """A marker 250 px wide is measured on every 4th column and row (at most 64 of each),
+    and where that is found and cross-checked it is the detection: as far from the truth as
+    every column's measurement, within its reported uncertainty."""
+    from services.vertex_extractor import measure
+    r = render_marker(0.15, 320, 240, 20.0)
+    ex = RhombusExtractor()
+    p = ex.params
+    assert p.max_columns == 64
+    det = ex.extract(r.image)
+    assert det.found, det.reason
+    fast = ex._prm.copy()
+    fast[measure.MAX_COLUMNS] = p.max_columns
+    seed = ex._seed
+    assert seed is not None
+    capped = measure.measure(r.image, *seed, p.colour.lut, p.colour.vector, fast)
+    full = measure.measure(r.image, *seed, p.colour.lut, p.colour.vector, ex._prm)
+    assert capped[0] == full[0] == measure.FOUND
+    assert capped[1][measure.CAPPED] == 1 and capped[1][measure.CHECKED] == 1
+    assert capped[1][measure.COLUMNS] <= 64 < 150 < full[1][measure.COLUMNS]
+    assert full[1][measure.CAPPED] == 0
+    assert np.abs(ex.extract(r.image).vertices_px - capped[2]).max() < 1e-9  # (tracked)
+    err_capped = np.linalg.norm(capped[2] - r.vertices_px, axis=1)
+    err_full = np.linalg.norm(full[2] - r.vertices_px, axis=1)
+    assert err_capped.max() < 0.3 and err_full.max() < 0.3, (err_capped, err_full)
+    assert det.vertices_cov_px2 is not None
+    sigma = np.sqrt(det.vertices_cov_px2[:, [0, 1], [0, 1]].sum(axis=1))
+    assert np.all(np.linalg.norm(capped[2] - full[2], axis=1) < 3 * sigma)
+
+
+def test_a_near_marker_not_found_and_cross_checked_on_fewer_columns_is_measured_on_all(
+        monkeypatch):
+    """The scans on every k-th column are a first try only: where they are not both found
+    and agreeing, the marker is measured on every column, as with ``max_columns = 0``."""
+    from services.vertex_extractor import measure
+    r = render_marker(0.15, 320, 240, 20.0)
+    every = RhombusExtractor(ExtractorParams(max_columns=0)).extract(r.image)
+    real = measure.measure
+    caps: list[float] = []
+
+    def unchecked(img, x, y, radius, lut, m, prm):  # type: ignore[no-untyped-def]
+        out = real(img, x, y, radius, lut, m, prm)
+        caps.append(float(prm[measure.MAX_COLUMNS]))
+        if prm[measure.MAX_COLUMNS] > 0:
+            out[1][measure.CHECKED] = 0.0  # (as if the row scan had failed)
+        return out
+
+    monkeypatch.setattr(measure, "measure", unchecked)
+    det = RhombusExtractor().extract(r.image)
+    assert det.found and every.found
+    assert caps[:2] == [64.0, 0.0]  # (the marker's blob first; then any other blob's)
+    assert np.abs(det.vertices_px - every.vertices_px).max() < 1e-9
+
+
 def test_optimal_split_finds_the_kink():
     x = np.arange(40, dtype=float)
     y = np.where(x < 17, 100 - 1.3 * x, 100 - 1.3 * 17 + 1.3 * (x - 17))

@@ -66,16 +66,18 @@ HIGHLIGHT_MIN_POINTS = 2
  COV_FLOOR, MIN_ANGLE, MAX_RESIDUAL, DIAGONAL_RATIO, MAX_OFF_NORMAL, MAX_ROLL, MAX_PITCH,
  MAX_SIGMA, CROSS_CHECK, MAX_GAP, MEAN_COV_SCALE, GAP_COV_SCALE, FUSE, JOINT, MAX_OFF,
  JOINT_ROWS, UNDER_HIGHLIGHT, SHADED_SPREAD, MAX_DIAGONAL_SHIFT, SHADED_DEPTH,
- SHADED_GRADIENT, N_PARAMS) = range(31)
+ SHADED_GRADIENT, MAX_COLUMNS, N_PARAMS) = range(32)
 # the figures returned beside the status
 (AREA, COLUMNS, CONTRAST, RESIDUAL, QUAD_AREA, ANGLE_MIN, ANGLE_MAX, TILT, ROLL, PITCH,
  SIGMA, GAP, AREA_RATIO, SEED_X, SEED_Y, SEED_RADIUS, CHECKED, COLUMNS_UNSURE, OFF,
- DIAGONAL_SHIFT, ROWS_INSTEAD, N_STATS) = range(22)
+ DIAGONAL_SHIFT, ROWS_INSTEAD, CAPPED, N_STATS) = range(23)
 # CHECKED: 1 where the row scan agreed with the column scan; COLUMNS_UNSURE: 1 where the
 # column scan alone was too uncertain and the rows were asked (``fuse``); OFF: how far the
 # rows' lines are off the column scan's edge points where the rows were used instead;
 # DIAGONAL_SHIFT: how far the diagonals cross off their midpoints (``lines.diagonal_shift``);
-# ROWS_INSTEAD: 1 where the rows were measured instead of the columns (``_instead``)
+# ROWS_INSTEAD: 1 where the rows were measured instead of the columns (``_instead``);
+# CAPPED: 1 where the walked blob is wider or taller than ``prm[MAX_COLUMNS]`` columns (a
+# scan may have measured every k-th only)
 
 
 @njit(inline="always")
@@ -242,6 +244,22 @@ def _judge(img, status, area, n, contrast, u, d, width, height, prm, transposed,
     return again, u_again, d_again
 
 
+@njit(inline="always")
+def _cov_scale(u, d, prm):  # type: ignore[no-untyped-def]
+    """The line fits' covariance scale for the edge points u, d (n, 2), columns in their
+    first coordinate: ``prm[COV_SCALE]`` counts neighbouring columns' points as partly one
+    (they share pixels through the blur, the demosaicing and JPEG); points on every k-th
+    column only (``MAX_COLUMNS``) share fewer, and the scale is ``prm[COV_SCALE]`` / k, at
+    least 1 (webcam renders: the squared vertex errors normalised by it as on every column;
+    docs/measured.md)."""
+    step = np.inf
+    for pts in (u, d):
+        for i in range(1, pts.shape[0]):
+            step = min(step, pts[i, 0] - pts[i - 1, 0])
+    k = step / max(prm[DX], 1.0) if np.isfinite(step) else 1.0
+    return max(prm[COV_SCALE] / k, 1.0) if k > 1.0 else prm[COV_SCALE]
+
+
 @njit()
 def _tests(u, d, cx, cy, area, width, height, prm, transposed,  # type: ignore[no-untyped-def]
            stats, v_out, cov_out):
@@ -251,7 +269,8 @@ def _tests(u, d, cx, cy, area, width, height, prm, transposed,  # type: ignore[n
     if u.shape[0] < 2 * min_points + 4 or d.shape[0] < 2 * min_points + 4:
         return FEW_POINTS, u, d
     fit, v, residual, cov, sigma = lines.fit_rhombus_robust(
-        u, d, min_points, 2, cx, cy, prm[MAX_OUTSIDE_SHARE], prm[COV_SCALE], prm[COV_FLOOR])
+        u, d, min_points, 2, cx, cy, prm[MAX_OUTSIDE_SHARE], _cov_scale(u, d, prm),
+        prm[COV_FLOOR])
     stats[RESIDUAL], stats[SIGMA] = residual, sigma
     if fit != lines.FIT_OK:
         return FIT + fit, u, d
@@ -322,7 +341,7 @@ def _row_scan(img, sx, sy, lut, m, prm):  # type: ignore[no-untyped-def]
     status, area, n, contrast, u, d, walked = scan.scan(
         rows, sy, sx, int(prm[MIN_LEN]), int(prm[DX]), int(prm[WINDOW]), lut, m,
         int(prm[EDGE]), int(prm[OUTER]), prm[SHADED_SPREAD], int(prm[SHADED_DEPTH]),
-        prm[SHADED_GRADIENT] > 0)
+        prm[SHADED_GRADIENT] > 0, int(prm[MAX_COLUMNS]))
     box = np.array([walked[2], walked[3], walked[0], walked[1]])
     return status, area, n, contrast, u, d, rows, box
 
@@ -433,7 +452,7 @@ def _joint(u, d, u_rows, d_rows, v0, area, width, height, prm,  # type: ignore[n
     fit, vj, residual, cj, sigma = lines.fit_joint(
         np.ascontiguousarray(u), np.ascontiguousarray(d), np.ascontiguousarray(u_rows),
         np.ascontiguousarray(d_rows), v0, JOINT_DROP_PX, int(prm[MIN_POINTS]), cx, cy,
-        prm[MAX_OUTSIDE_SHARE], JOINT_COV_SCALE * prm[COV_SCALE], prm[COV_FLOOR])
+        prm[MAX_OUTSIDE_SHARE], JOINT_COV_SCALE * _cov_scale(u, d, prm), prm[COV_FLOOR])
     if fit != lines.FIT_OK:
         return FIT + fit, v, cov
     status = _accept(vj, residual, cj, sigma, area, width, height, prm, stats, v, cov)
@@ -471,6 +490,8 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
     if sx < 0:
         return NO_SEED, stats, v, cov, np.empty((0, 2)), np.empty((0, 2))
     status, area, n, contrast, u, d, box = column_scan(img, sx, sy, lut, m, prm)
+    cap = prm[MAX_COLUMNS] * prm[DX]
+    stats[CAPPED] = cap > 0 and max(box[1] - box[0], box[3] - box[2]) + 1 > cap
     found, u, d = _judge(img, status, area, n, contrast, u, d, W, H, prm, False, stats, v,
                          cov)
     if found == UNCERTAIN and prm[FUSE] > 0:  # the rows may know the vertex better
@@ -504,6 +525,7 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
         tall = box[3] - box[2] > TALL * (box[1] - box[0])
         if status != scan.BORDER and (few or (tall and fit_failed(found))):
             stats_rows = np.zeros(N_STATS)
+            stats_rows[CAPPED] = stats[CAPPED]
             rows, u_rows, d_rows = _rows(img, sx, sy, lut, m, prm, stats_rows, v, cov)
             if rows == FOUND:  # checked against and fitted with the columns' edge points
                 rows = _instead(img, u, d, u_rows, d_rows, v, cov, prm, stats_rows)
@@ -550,7 +572,8 @@ def column_scan(img: np.ndarray, sx: int, sy: int, lut: np.ndarray, m: np.ndarra
     H, W = img.shape[0], img.shape[1]
     return scan.scan(img[0:H, 0:W], sx, sy, int(prm[MIN_LEN]), int(prm[DX]),
                      int(prm[WINDOW]), lut, m, int(prm[EDGE]), int(prm[OUTER]),
-                     prm[SHADED_SPREAD], int(prm[SHADED_DEPTH]), prm[SHADED_GRADIENT] > 0)
+                     prm[SHADED_SPREAD], int(prm[SHADED_DEPTH]), prm[SHADED_GRADIENT] > 0,
+                     int(prm[MAX_COLUMNS]))
 
 
 @njit()

@@ -137,7 +137,7 @@ def find_seed(img: np.ndarray, sx: int, sy: int, radius: int, lut: np.ndarray, m
 def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
          lut: np.ndarray, m: np.ndarray, edge_mode: int = 1, outer: int = -1,
          shaded_spread: float = SHADED, shaded_depth: int = SHADED_DEPTH,
-         shaded_gradient: bool = True
+         shaded_gradient: bool = True, max_columns: int = 0
          ) -> tuple[int, int, int, float, np.ndarray, np.ndarray, np.ndarray]:
     """Walk the marker's columns from the marker pixel (sx, sy) and measure its edges.
 
@@ -154,7 +154,10 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     end where its edges are sharp and that is nearer than just beyond the window
     (``SHADED_DEPTH``; 0: just beyond the window, as elsewhere), and there, where
     ``shaded_gradient``, follows the light's steady change across the edge
-    (``GRADIENT_GAP``).
+    (``GRADIENT_GAP``). ``max_columns`` (0: no limit): a marker with more usable columns is
+    measured on every k-th, Δx = k ``dx`` with k the least that leaves at most that many,
+    each edge point's inside level over about as many px as on every column
+    (``ExtractorParams.max_columns``).
     """
     H, W = img.shape[0], img.shape[1]
     empty = np.empty((0, 2))
@@ -200,7 +203,10 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
         z += 1
     if bottom[widest] - top[widest] + 1 < min_len:
         return OK, area, 0, 0.0, empty, empty, box
+    if max_columns > 0 and z - a > max_columns * dx:
+        dx *= (z - a + max_columns * dx - 1) // (max_columns * dx)
     n = (z - a + dx - 1) // dx
+    span = max((INSIDE_SPAN + dx // 2) // dx, 2)  # (about INSIDE_SPAN px each side)
     if outer < 0:
         outer = window
     gap = max(window, outer) + 1 + LOCAL_ROWS
@@ -290,7 +296,7 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
     span_c = np.empty(3)
     for i in range(n):
         x = a + i * dx
-        i0, i1 = max(i - INSIDE_SPAN, 0), min(i + INSIDE_SPAN + 1, n)
+        i0, i1 = max(i - span, 0), min(i + span + 1, n)
         for side in range(2):
             count = colour[side, i1, 3] - colour[side, i0, 3]
             if count < LOCAL_ROWS or not clear[side, i]:
@@ -459,7 +465,7 @@ def _levels(img, a, n, dx, top, bottom, gap, lut, w, inside_rows, clear):  # typ
 LOCAL_ROWS = 3  # rows beyond the window that give the local background level
 LEVEL_STEP = 0.2  # a change of the inside level along an edge that drops its points there
 FLAT_TOLERANCE = 0.12  # how much brighter than the inside level the window's inner rows may be
-INSIDE_SPAN = 6  # columns each side whose inside colour gives an edge point's inside level
+INSIDE_SPAN = 6  # columns (px) each side whose inside colour gives an edge point's inside level
 STEEP = 1.5     # extra window rows per unit of edge slope (rows per column)
 MAX_WIDEN = 2   # ... and at most this many windows more
 GLOBAL, LOCAL, CROSSING, ORTHOGONAL = 0, 1, 2, 3  # edge methods (ExtractorParams.edge)
