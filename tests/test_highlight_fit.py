@@ -188,9 +188,12 @@ def test_without_intrinsics_the_camera_learned_from_the_marker_gives_the_hidden_
     and its principal point within 20 px of the paper's. The kept frame whose hidden edge the
     assumed cameras leave 4.1 px apart (``highlight_7_81``, refused above) is then found as
     the rhombus's pose under the learned camera (its focal length ± 3 %) within 1 px and 3
-    sigmas (0.75 px at 0.76 px). The camera stays through ``reset``; intrinsics take over from
-    it; with ``learn_camera`` off nothing is learned."""
+    sigmas (0.75 px at 0.76 px). A pink card the weak shape test takes for the marker (the
+    bench's first posed card) is refused on a cold search under the learned camera, as with
+    intrinsics. The camera stays through ``reset``; intrinsics take over from it; with
+    ``learn_camera`` off nothing is learned."""
     from services.sim.scenes import random_views
+    from services.tools.bench.vertices import posed_cards
     ex = RhombusExtractor()
     off = RhombusExtractor(ExtractorParams(learn_camera=False))
     for view in random_views(100, seed=8, distance_m=(0.2, 0.8), webcam=True):
@@ -206,6 +209,13 @@ def test_without_intrinsics_the_camera_learned_from_the_marker_gives_the_hidden_
     ex.reset()
     _assert_within(ex.extract(image), truth, 1.0)
     assert ex.learned_camera is learned
+    card = posed_cards(1, seed=2026)[0]
+    off.reset()
+    assert off.extract(card).found  # (without the camera: a pink card passes for the marker)
+    ex.reset()
+    refused = ex.extract(card)
+    assert not refused.found and "under the camera learned from the marker" in refused.reason
+    assert "not the marker's shape" in refused.reason, refused.reason
     ex.use_intrinsics(camera)
     assert ex.learned_camera is None
     ex.use_intrinsics(None)  # (intrinsics withdrawn: learned afresh, nothing yet)

@@ -409,6 +409,9 @@ class RhombusExtractor:
         self._shape: ShapeTest | None = None
         #: the camera learned from the marker (no intrinsics; ``learn_camera``)
         self._learner: CameraLearner | None = None
+        self._geometry = g
+        #: the shape tests under the learned camera (``_learned_refusal``), for its solve
+        self._learned_tests: tuple[Solved, list[ShapeTest]] | None = None
         self._loose = (self._prm, self._prm_small)  # the weak shape test's bounds, loosened
 
     def use_intrinsics(self, camera: CameraModel | None, geometry: Geometry | None = None
@@ -464,7 +467,38 @@ class RhombusExtractor:
         if isinstance(seeds, str):
             self._seed = None
             return _miss(seeds)
-        return self._learn_from(image, self._first_marker(image, seeds))
+        det = self._learn_from(image, self._first_marker(image, seeds))
+        if det.found and (why := self._learned_refusal(image, det)):
+            self._seed = None
+            return _miss(LEARNED_SHAPE + why)
+        return det
+
+    def _learned_refusal(self, image: np.ndarray, det: Detection) -> str:
+        """Without intrinsics, once the camera is learned from the marker
+        (``learned_camera.py``): why ``det`` is not an image of the deployment's rhombus
+        under it (``shape.py``'s test) at its focal length and at both ends of its band
+        (``learned_camera.BAND``); "" where it may be under any of them, or nothing is
+        learned. On a cold search's detection only: two pink things that overlap into one
+        blob pass the test without intrinsics (docs/measured.md "Two pink things that
+        overlap"); a tracked marker was one a cold search took."""
+        learner = self._learner
+        if self._shape is not None or learner is None or det.vertices_px is None or \
+                (learner.width, learner.height) != image.shape[1::-1]:
+            return ""
+        solved = learner.camera()
+        if solved is None:
+            return ""
+        if self._learned_tests is None or self._learned_tests[0] is not solved:
+            cameras = [solved.camera(learner.width, learner.height), *learner.cameras()]
+            self._learned_tests = (solved, [ShapeTest(c, self._geometry, self.params.shape)
+                                            for c in cameras])
+        reasons = []
+        for test in self._learned_tests[1]:
+            reason = test.refusal(det.vertices_px, det.vertices_cov_px2)
+            if not reason:
+                return ""
+            reasons.append(reason)
+        return reasons[0]
 
     def _learn_from(self, image: np.ndarray, det: Detection) -> Detection:
         """``det``, after the camera learner (no intrinsics, ``learn_camera``) has seen it if
@@ -950,6 +984,11 @@ GAP_COV_SCALE = 0.5
 #: rows' lines are farther than this (px) from the column scan's measured edge points
 #: (``measure.points_off``; ``ExtractorParams.check_rows_instead``)
 MAX_ROWS_OFF_PX = 1.5
+
+
+#: a cold search's detection refused under the camera learned from the marker, at its focal
+#: length and both ends of its band (``RhombusExtractor._learned_refusal``)
+LEARNED_SHAPE = "not the marker's rhombus under the camera learned from the marker: "
 
 
 def _params_vector(p: ExtractorParams, diagonal_ratio: float, max_diagonal_shift: float,

@@ -295,7 +295,9 @@ def run(quick: bool) -> None:
             "another shape, in photographed rooms; then one card each (5-15 cm, 20-90 cm "
             "away, up to 60 deg off its normal, any roll) in the marker's ink. With "
             "intrinsics: the extractor knows the camera (camera/intrinsics) and tests the "
-            "best planar pose of the rhombus (shape.py). Goal: none.")
+            "best planar pose of the rhombus (shape.py). Without them ours has learned the "
+            "camera from the marker by then (learned_camera.py) and tests a cold search's "
+            "detection the same way under it. Goal: none.")
     speed: list[Row] = []
     sized: list[Row] = []
     for width, height in RESOLUTIONS:
