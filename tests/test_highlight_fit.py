@@ -190,7 +190,8 @@ def test_without_intrinsics_the_camera_learned_from_the_marker_gives_the_hidden_
     the rhombus's pose under the learned camera (its focal length ± 3 %) within 1 px and 3
     sigmas (0.75 px at 0.76 px). A pink card the weak shape test takes for the marker (the
     bench's first posed card) is refused on a cold search under the learned camera, as with
-    intrinsics. The camera stays through ``reset``; intrinsics take over from it; with
+    intrinsics. After a zoom to 500 px the new camera is learned, nothing wrong meanwhile.
+    The camera stays through ``reset``; intrinsics take over from it; with
     ``learn_camera`` off nothing is learned."""
     from services.sim.scenes import random_views
     from services.tools.bench.vertices import posed_cards
@@ -216,12 +217,33 @@ def test_without_intrinsics_the_camera_learned_from_the_marker_gives_the_hidden_
     refused = ex.extract(card)
     assert not refused.found and "under the camera learned from the marker" in refused.reason
     assert "not the marker's shape" in refused.reason, refused.reason
+    _after_a_zoom_the_new_camera_is_learned_and_nothing_is_wrong(ex)
     ex.use_intrinsics(camera)
     assert ex.learned_camera is None
     ex.use_intrinsics(None)  # (intrinsics withdrawn: learned afresh, nothing yet)
     assert ex.learned_camera is None
     ex.reset()
     assert not ex.extract(image).found
+
+
+def _after_a_zoom_the_new_camera_is_learned_and_nothing_is_wrong(ex: RhombusExtractor) -> None:
+    """The lens zooms out (757 -> 500 px): cold searches may be refused under the old camera
+    for a while (its shape test), but the detections still reach the learner, which drops
+    the old camera and learns the new one; no detection is wrong meanwhile."""
+    from services.sim.scenes import random_views
+    wide = CameraModel.pinhole(500.0, 330.0, 250.0, 640, 480)
+    found = []
+    for view in random_views(220, seed=9, camera=wide, distance_m=(0.15, 0.6), webcam=True):
+        ex.reset()
+        det = ex.extract(view.rendered.image)
+        found.append(det.found)
+        if det.found:
+            assert det.vertices_px is not None
+            err = np.linalg.norm(det.vertices_px - view.rendered.vertices_px, axis=1)
+            assert err.max() < 2.0, err
+    learned = ex.learned_camera
+    assert learned is not None and abs(learned.f - 500.0) < 15.0, learned
+    assert np.mean(found[-50:]) >= 0.95  # (the new camera's shape test passes the marker)
 
 
 def test_assumed_cameras_centre_the_principal_point():
