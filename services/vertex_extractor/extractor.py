@@ -641,8 +641,8 @@ class RhombusExtractor:
             if measured[1][measure.CAPPED] > 0:  # taken found and cross-checked, else again
                 if measured[0] == measure.FOUND and measured[1][measure.CHECKED] > 0:
                     det, _ = self._judge(image, measured, fast, test, tracked)
-                    if det.found:
-                        return self._checked_under_shadow(image, det), None
+                    if det.found and (checked := self._checked_under_shadow(image, det)).found:
+                        return checked, None
                 measured = None  # (on every column, as every later try)
         if measured is None:
             measured = measure.measure(image, *seed, lut, model, prm)

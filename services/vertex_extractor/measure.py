@@ -245,6 +245,33 @@ def _judge(img, status, area, n, contrast, u, d, width, height, prm, transposed,
 
 
 @njit(inline="always")
+def _capped(box, prm):  # type: ignore[no-untyped-def]
+    """1.0 where a walk's box (x0, x1, y0, y1 px) is wider or taller than the cap
+    (``prm[MAX_COLUMNS]`` columns Δx apart; 0: none): its scan may have measured every k-th
+    column only (``scan.scan``); else 0.0."""
+    cap = prm[MAX_COLUMNS] * prm[DX]
+    return 1.0 if cap > 0 and max(box[1] - box[0], box[3] - box[2]) + 1 > cap else 0.0
+
+
+@njit(inline="always")
+def _column_step(u, d, axis):  # type: ignore[no-untyped-def]
+    """The least step (px) between consecutive edge points of u, d (n, 2) along ``axis``
+    (their scan's columns); inf with no two."""
+    step = np.inf
+    for pts in (u, d):
+        for i in range(1, pts.shape[0]):
+            step = min(step, pts[i, axis] - pts[i - 1, axis])
+    return step
+
+
+@njit(inline="always")
+def _scale_for(step, prm):  # type: ignore[no-untyped-def]
+    """``prm[COV_SCALE]`` for points ``step`` px apart: over k = step / Δx where k > 1."""
+    k = step / max(prm[DX], 1.0) if np.isfinite(step) else 1.0
+    return max(prm[COV_SCALE] / k, 1.0) if k > 1.0 else prm[COV_SCALE]
+
+
+@njit(inline="always")
 def _cov_scale(u, d, prm):  # type: ignore[no-untyped-def]
     """The line fits' covariance scale for the edge points u, d (n, 2), columns in their
     first coordinate: ``prm[COV_SCALE]`` counts neighbouring columns' points as partly one
@@ -252,12 +279,7 @@ def _cov_scale(u, d, prm):  # type: ignore[no-untyped-def]
     column only (``MAX_COLUMNS``) share fewer, and the scale is ``prm[COV_SCALE]`` / k, at
     least 1 (webcam renders: the squared vertex errors normalised by it as on every column;
     docs/measured.md)."""
-    step = np.inf
-    for pts in (u, d):
-        for i in range(1, pts.shape[0]):
-            step = min(step, pts[i, 0] - pts[i - 1, 0])
-    k = step / max(prm[DX], 1.0) if np.isfinite(step) else 1.0
-    return max(prm[COV_SCALE] / k, 1.0) if k > 1.0 else prm[COV_SCALE]
+    return _scale_for(_column_step(u, d, 0), prm)
 
 
 @njit()
@@ -323,8 +345,9 @@ def _accept(v, residual, cov, sigma, area, width, height, prm,  # type: ignore[n
 @njit()
 def _rows(img, sx, sy, lut, m, prm, stats, v, cov):  # type: ignore[no-untyped-def]
     """The marker at the marker pixel (sx, sy) scanned along its rows (``_row_scan``) and
-    judged."""
-    status, area, n, contrast, u, d, rows, _ = _row_scan(img, sx, sy, lut, m, prm)
+    judged; ``stats[CAPPED]`` set too where the row walk is over the cap (``_capped``)."""
+    status, area, n, contrast, u, d, rows, row_box = _row_scan(img, sx, sy, lut, m, prm)
+    stats[CAPPED] = max(stats[CAPPED], _capped(row_box, prm))
     return _judge(rows, status, area, n, contrast, u, d, img.shape[1], img.shape[0], prm,
                   True, stats, v, cov)
 
@@ -371,6 +394,7 @@ def _under_highlight(img, u, d, sx, sy, box, area, lut, m, prm,  # type: ignore[
     cov = np.zeros((4, 2, 2))
     status, row_area, _, _, u_rows, d_rows, rows, row_box = _row_scan(img, sx, sy, lut, m,
                                                                       prm)
+    stats[CAPPED] = max(stats[CAPPED], _capped(row_box, prm))
     if status != scan.OK:
         return FIT + lines.TOO_FEW_POINTS, v, cov
     box = np.array([min(box[0], row_box[0]), max(box[1], row_box[1]),
@@ -452,7 +476,8 @@ def _joint(u, d, u_rows, d_rows, v0, area, width, height, prm,  # type: ignore[n
     fit, vj, residual, cj, sigma = lines.fit_joint(
         np.ascontiguousarray(u), np.ascontiguousarray(d), np.ascontiguousarray(u_rows),
         np.ascontiguousarray(d_rows), v0, JOINT_DROP_PX, int(prm[MIN_POINTS]), cx, cy,
-        prm[MAX_OUTSIDE_SHARE], JOINT_COV_SCALE * _cov_scale(u, d, prm), prm[COV_FLOOR])
+        prm[MAX_OUTSIDE_SHARE], JOINT_COV_SCALE * _scale_for(
+            min(_column_step(u, d, 0), _column_step(u_rows, d_rows, 1)), prm), prm[COV_FLOOR])
     if fit != lines.FIT_OK:
         return FIT + fit, v, cov
     status = _accept(vj, residual, cj, sigma, area, width, height, prm, stats, v, cov)
@@ -490,16 +515,16 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
     if sx < 0:
         return NO_SEED, stats, v, cov, np.empty((0, 2)), np.empty((0, 2))
     status, area, n, contrast, u, d, box = column_scan(img, sx, sy, lut, m, prm)
-    cap = prm[MAX_COLUMNS] * prm[DX]
-    stats[CAPPED] = cap > 0 and max(box[1] - box[0], box[3] - box[2]) + 1 > cap
+    stats[CAPPED] = _capped(box, prm)
     found, u, d = _judge(img, status, area, n, contrast, u, d, W, H, prm, False, stats, v,
                          cov)
     if found == UNCERTAIN and prm[FUSE] > 0:  # the rows may know the vertex better
         stats[COLUMNS_UNSURE] = 1.0
         v_rows = np.zeros((4, 2))
         cov_rows = np.zeros((4, 2, 2))
-        rows, u_rows, d_rows = _rows(img, sx, sy, lut, m, prm, np.zeros(N_STATS),
-                                     v_rows, cov_rows)
+        scratch = np.zeros(N_STATS)
+        rows, u_rows, d_rows = _rows(img, sx, sy, lut, m, prm, scratch, v_rows, cov_rows)
+        stats[CAPPED] = max(stats[CAPPED], scratch[CAPPED])
         if rows == FOUND or rows == UNCERTAIN:
             vf, cf = v.copy(), cov.copy()
             stats[GAP], sigma = fuse(vf, cf, v_rows, cov_rows, prm[MEAN_COV_SCALE],
@@ -547,7 +572,9 @@ def measure(img: np.ndarray, x: int, y: int, radius: int, lut: np.ndarray, m: np
     if prm[CROSS_CHECK] > 0:
         v_rows = np.zeros((4, 2))
         cov_rows = np.zeros((4, 2, 2))
-        rows, _, _ = _rows(img, sx, sy, lut, m, prm, np.zeros(N_STATS), v_rows, cov_rows)
+        scratch = np.zeros(N_STATS)
+        rows, _, _ = _rows(img, sx, sy, lut, m, prm, scratch, v_rows, cov_rows)
+        stats[CAPPED] = max(stats[CAPPED], scratch[CAPPED])
         if rows == FOUND:
             vc, cc = v.copy(), cov.copy()
             stats[GAP] = cross_check(vc, cc, v_rows, cov_rows, prm[MEAN_COV_SCALE],

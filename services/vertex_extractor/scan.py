@@ -203,10 +203,12 @@ def scan(img: np.ndarray, sx: int, sy: int, min_len: int, dx: int, window: int,
         z += 1
     if bottom[widest] - top[widest] + 1 < min_len:
         return OK, area, 0, 0.0, empty, empty, box
+    k = 1  # every k-th of the columns Δx apart (``max_columns``)
     if max_columns > 0 and z - a > max_columns * dx:
-        dx *= (z - a + max_columns * dx - 1) // (max_columns * dx)
+        k = (z - a + max_columns * dx - 1) // (max_columns * dx)
+    dx *= k
     n = (z - a + dx - 1) // dx
-    span = max((INSIDE_SPAN + dx // 2) // dx, 2)  # (about INSIDE_SPAN px each side)
+    span = max((INSIDE_SPAN + k // 2) // k, 2)  # (INSIDE_SPAN columns' px, 2 at least)
     if outer < 0:
         outer = window
     gap = max(window, outer) + 1 + LOCAL_ROWS
