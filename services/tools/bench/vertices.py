@@ -12,10 +12,14 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from services.tools.bench.common import Row, progress, section, times_us
+
+if TYPE_CHECKING:
+    from services.vertex_extractor.extractor import RhombusExtractor
 
 #: webcam stages alone (every other stage off), then the whole camera
 STAGES: dict[str, dict[str, object]] = {
@@ -161,21 +165,68 @@ def hard_conditions(n: int, n_empty: int,
             groups[f"{condition}: an edge's ink clipped >= 1/2"] = [
                 i for i, c in enumerate(clipped) if c]
         extra = highlight_only if condition == HIGHLIGHT and highlight_only else {}
-        for name, method in {**methods, **extra}.items():
-            got, ms = [], []
-            for image, _ in frames:
-                start = time.perf_counter()
-                got.append(method(image))
-                ms.append(1e3 * (time.perf_counter() - start))
-            for label, group in groups.items():
-                rows.append((f"{label} ({len(group)})" if label != condition else label, name,
-                             *_found_errors([(got[i], frames[i][1]) for i in group]),
-                             _times_ms([ms[i] for i in group])))
+        rows += _measured(condition, frames, groups, {**methods, **extra})
     progress(f"vertices: {n_empty} marker-less frames with distractors")
     empty = [v.rendered.image for v in hard_views(NO_MARKER, n_empty, seed=2025)]
     false = [(name, str(sum(method(img) is not None for img in empty)))
              for name, method in methods.items()]
     return rows, [(NO_MARKER, name, f"{k} / {len(empty)}") for name, k in false]
+
+
+def _measured(condition: str, frames: list[tuple[np.ndarray, np.ndarray]],
+              groups: dict[str, list[int]],
+              methods: dict[str, Callable[[np.ndarray], np.ndarray | None]]) -> list[Row]:
+    """Each method on the (image, true vertices px) ``frames``: a row per method and group of
+    frames (label -> indices; the condition's own label is the whole)."""
+    rows: list[Row] = []
+    for name, method in methods.items():
+        got, ms = [], []
+        for image, _ in frames:
+            start = time.perf_counter()
+            got.append(method(image))
+            ms.append(1e3 * (time.perf_counter() - start))
+        for label, group in groups.items():
+            rows.append((f"{label} ({len(group)})" if label != condition else label, name,
+                         *_found_errors([(got[i], frames[i][1]) for i in group]),
+                         _times_ms([ms[i] for i in group])))
+    return rows
+
+
+#: a cheap wide webcam's barrel distortion (OpenCV's k1, on normalised coordinates): the
+#: frame's corners 16-45 px inward through the paper's camera
+BARREL_K1 = -0.25
+
+
+def barrel(n: int, references: dict[str, Callable[[np.ndarray], np.ndarray | None]]
+           ) -> list[Row]:
+    """The clean condition's views through the paper's camera with barrel distortion
+    (``BARREL_K1``): ours as a new extractor without intrinsics (learning from these views
+    alone), ours with the lens's intrinsics (its distortion too), and the ``references``."""
+    from services.core.camera import CameraModel
+    from services.sim.scenes import hard_views
+    from services.vertex_extractor.extractor import RhombusExtractor
+    paper = CameraModel.paper()
+    lens = CameraModel(paper.K, np.array([BARREL_K1, 0.0, 0.0, 0.0, 0.0]), paper.width,
+                       paper.height)
+    condition = f"barrel distortion (k1 {BARREL_K1})"
+    progress(f"vertices: hard conditions, {n} frames, {condition}")
+    frames = [(v.rendered.image, v.rendered.vertices_px)
+              for v in hard_views("clean", n, seed=2024, camera=lens)
+              if v.rendered.marker_visible and v.rendered.vertices_px is not None]
+    known = RhombusExtractor()
+    known.use_intrinsics(lens)
+    methods = {"ours": cold(RhombusExtractor()), "ours, with intrinsics": cold(known),
+               **references}
+    return _measured(condition, frames, {condition: list(range(len(frames)))}, methods)
+
+
+def cold(extractor: RhombusExtractor) -> Callable[[np.ndarray], np.ndarray | None]:
+    """``extractor`` on one frame with no prior (reset first): the vertices px or None."""
+    def run_cold(img: np.ndarray) -> np.ndarray | None:
+        extractor.reset()
+        d = extractor.extract(img)
+        return d.vertices_px if d.found else None
+    return run_cold
 
 
 def _times_ms(ms: list[float]) -> str:
@@ -218,14 +269,6 @@ def run(quick: bool) -> None:
     n = 40 if quick else 120
     ex = RhombusExtractor()
     ex_paper = RhombusExtractor(ExtractorParams(method="paper"))
-
-    def cold(extractor: RhombusExtractor) -> Callable[[np.ndarray], np.ndarray | None]:
-        def run_cold(img: np.ndarray) -> np.ndarray | None:
-            extractor.reset()
-            d = extractor.extract(img)
-            return d.vertices_px if d.found else None
-        return run_cold
-
     ours = cold(ex)
     methods = {"ours": ours, "the paper as published (Tables 1, 2)": cold(ex_paper),
                "OpenCV contour + fitLine": contour_fit_line,
@@ -258,6 +301,8 @@ def run(quick: bool) -> None:
         30 if quick else 100, 50 if quick else 200,
         {"ours": ours, **with_intrinsics, **{k: methods[k] for k in (
             "OpenCV contour + fitLine", "OpenCV contour + cornerSubPix")}}, unlearned)
+    hard_rows += barrel(30 if quick else 100, {k: methods[k] for k in (
+        "OpenCV contour + fitLine", "OpenCV contour + cornerSubPix")})
     learned = ex.learned_camera  # (from the frames it saw: no intrinsics given)
     K = CameraModel.paper().K
     progress("vertices: pink cards posed in 3D")
@@ -287,7 +332,9 @@ def run(quick: bool) -> None:
                if learned is not None else "not learned") + "), and fits the rhombus's pose "
             "under it where an edge is under a highlight; the row before it learns it "
             "assumes focal lengths 0.5 and 1.4 x the width, the principal point centred. "
-            "Goals: "
+            f"Barrel distortion: the clean condition's views through the paper's camera with "
+            f"k1 = {BARREL_K1}; ours a new extractor learning from them alone, with "
+            "intrinsics the lens's (its distortion too). Goals: "
             "wrong <= 1 % everywhere; fully visible found >= 95 %, median <= 2 x clean; "
             "occlusion (<= 20 % of the area) found >= 70 %.")
     section("False detections without a marker", ("frames", "method", "detections"),
