@@ -224,6 +224,11 @@ TUKEY_C = 4.685        # Tukey biweight constant, in robust sigmas
 INLIER_SIGMAS = 3.0    # a point within this many robust sigmas of its line is an inlier
 MIN_SIGMA_PX = 0.05    # least robust residual scale (px)
 MIN_INLIER_SHARE = 0.5  # a line with fewer inliers is not measured (hidden, or not an edge)
+#: a bowed edge (a lens's barrel distortion, a curled print): the quadratic through its inliers'
+#: residuals, carried to the vertex, departs from the line by a bias the points' noise does
+#: not average out; its square, less BOW_SIGMAS² times its own noise variance, is added to
+#: the vertex's variance along the line's normal (``_bow``)
+BOW_SIGMAS = 2.0
 FAST_SIGMAS, FAST_PX = 5.0, 0.6  # no point further than these from the Huber line: it stands
 
 
@@ -417,7 +422,7 @@ def fit_rhombus_robust(u: np.ndarray, d: np.ndarray, min_points: int, drop: int,
     """
     v = np.zeros((4, 2))
     cov = np.zeros((4, 2, 2))
-    lines = np.zeros((4, 11))
+    lines = np.zeros((4, 20))
     for s in range(2):
         pts = u if s == 0 else d
         k = best_split(pts, min_points)
@@ -433,6 +438,7 @@ def fit_rhombus_robust(u: np.ndarray, d: np.ndarray, min_points: int, drop: int,
                 row[0], row[1], row[2], row[3], row[4] = nx, ny, dd, sg, cnt
                 row[5], row[6], row[7], row[8] = cx, cy, spread, sq
                 row[9], row[10] = pos, part.shape[0]
+                _bow(part, row)
             if rnd == 2 or (lines[2 * s, 9] == 0 and lines[2 * s + 1, 9] == 0 and
                             lines[2 * s, 4] == lines[2 * s, 10] and
                             lines[2 * s + 1, 4] == lines[2 * s + 1, 10]):
@@ -444,6 +450,61 @@ def fit_rhombus_robust(u: np.ndarray, d: np.ndarray, min_points: int, drop: int,
                 break
             k = k2
     return _quad(lines, min_points, max_outside_share, cov_scale, cov_floor)
+
+
+@njit()
+def _bow(points: np.ndarray, row: np.ndarray) -> None:
+    """The quadratic a0 + a1 t + a2 t² (t px along the line from its centroid) through the
+    residuals of ``points`` (n, 2) px from the line in ``row`` (``fit_rhombus_robust``'s
+    columns 0-8), its inliers only (within ``INLIER_SIGMAS`` sigmas), into ``row[11:14]``,
+    and the inverse of its normal matrix's upper triangle into ``row[14:20]`` (the
+    coefficients' covariance over sigma²; ``_bow_variance``); zeros with fewer than 6."""
+    nx, ny, d, sigma, cx, cy = row[0], row[1], row[2], row[3], row[5], row[6]
+    band = max(INLIER_SIGMAS * sigma, 0.25)
+    m = np.zeros((3, 3))
+    rhs = np.zeros(3)
+    count = 0
+    for i in range(points.shape[0]):
+        r = nx * points[i, 0] + ny * points[i, 1] - d
+        if abs(r) > band:
+            continue
+        t = -ny * (points[i, 0] - cx) + nx * (points[i, 1] - cy)
+        t2 = t * t
+        m[0, 0] += 1.0
+        m[0, 1] += t
+        m[0, 2] += t2
+        m[1, 2] += t * t2
+        m[2, 2] += t2 * t2
+        rhs[0] += r
+        rhs[1] += r * t
+        rhs[2] += r * t2
+        count += 1
+    row[11:20] = 0.0
+    if count < 6:
+        return
+    m[1, 1] = m[0, 2]
+    m[1, 0], m[2, 0], m[2, 1] = m[0, 1], m[0, 2], m[1, 2]
+    if abs(np.linalg.det(m)) <= 1e-9 * m[0, 0] * m[1, 1] * m[2, 2]:
+        return  # (the points bunched: no curvature to tell)
+    inv = np.linalg.inv(m)
+    a = inv @ rhs
+    row[11], row[12], row[13] = a[0], a[1], a[2]
+    row[14], row[15], row[16] = inv[0, 0], inv[0, 1], inv[0, 2]
+    row[17], row[18], row[19] = inv[1, 1], inv[1, 2], inv[2, 2]
+
+
+@njit(inline="always")
+def _bow_variance(row: np.ndarray, s: float, cov_scale: float) -> float:
+    """The square of the line's departure from its bowed edge at s px along it from its
+    centroid (``_bow``'s quadratic there), less ``BOW_SIGMAS``² times that departure's noise
+    variance (the line's sigma² g' inv g, g = (1, s, s²), times ``cov_scale``: neighbouring
+    points share pixels); 0 where within its noise."""
+    s2 = s * s
+    bias = row[11] + row[12] * s + row[13] * s2
+    gig = (row[14] + 2.0 * row[15] * s + 2.0 * row[16] * s2 + row[17] * s2
+           + 2.0 * row[18] * s * s2 + row[19] * s2 * s2)
+    return max(bias * bias - BOW_SIGMAS * BOW_SIGMAS * cov_scale * row[3] * row[3] * gig,
+               0.0)
 
 
 @njit()
@@ -481,9 +542,14 @@ def _quad(lines: np.ndarray, min_points: int, max_outside_share: float, cov_scal
         vb = b[3] ** 2 * (1.0 / b[4] + sb * sb / max(b[7], 1e-9))
         j00, j01 = b[1] / det, -a[1] / det
         j10, j11 = -b[0] / det, a[0] / det
-        cxx = cov_scale * (j00 * j00 * va + j01 * j01 * vb) + cov_floor
-        cxy = cov_scale * (j00 * j10 * va + j01 * j11 * vb)
-        cyy = cov_scale * (j10 * j10 * va + j11 * j11 * vb) + cov_floor
+        # (+ a bowed edge's bias at the vertex, not scaled: the points' sharing does not
+        # make it, and their number does not average it out)
+        ba, bb = _bow_variance(a, sa, cov_scale), _bow_variance(b, sb, cov_scale)
+        cxx = cov_scale * (j00 * j00 * va + j01 * j01 * vb) + cov_floor + (
+            j00 * j00 * ba + j01 * j01 * bb)
+        cxy = cov_scale * (j00 * j10 * va + j01 * j11 * vb) + j00 * j10 * ba + j01 * j11 * bb
+        cyy = cov_scale * (j10 * j10 * va + j11 * j11 * vb) + cov_floor + (
+            j10 * j10 * ba + j11 * j11 * bb)
         cov[vi, 0, 0], cov[vi, 0, 1], cov[vi, 1, 0], cov[vi, 1, 1] = cxx, cxy, cxy, cyy
         sigma_max = max(sigma_max, math.sqrt(largest_variance(cxx, cxy, cyy)))
     return FIT_OK, v, math.sqrt(sq_all / max(count, 1)), cov, sigma_max
@@ -500,7 +566,7 @@ def fit_joint(u: np.ndarray, d: np.ndarray, left: np.ndarray, right: np.ndarray,
     within ``drop_px`` of a vertex to none, and the vertices the lines give split the chains
     again (``fit_rhombus_robust``'s return)."""
     v = v0.copy()
-    lines = np.zeros((4, 11))
+    lines = np.zeros((4, 20))  # (no bow: columns 11-19 zero)
     status, res, cov, sigma = FIT_OK, 0.0, np.zeros((4, 2, 2)), 0.0
     chains = (u, d, left, right)
     for _ in range(3):
