@@ -438,7 +438,6 @@ def fit_rhombus_robust(u: np.ndarray, d: np.ndarray, min_points: int, drop: int,
                 row[0], row[1], row[2], row[3], row[4] = nx, ny, dd, sg, cnt
                 row[5], row[6], row[7], row[8] = cx, cy, spread, sq
                 row[9], row[10] = pos, part.shape[0]
-                _bow(part, row)
             if rnd == 2 or (lines[2 * s, 9] == 0 and lines[2 * s + 1, 9] == 0 and
                             lines[2 * s, 4] == lines[2 * s, 10] and
                             lines[2 * s + 1, 4] == lines[2 * s + 1, 10]):
@@ -449,6 +448,8 @@ def fit_rhombus_robust(u: np.ndarray, d: np.ndarray, min_points: int, drop: int,
             if k2 == k:
                 break
             k = k2
+        for side in range(2):  # (the lines as last fitted: on the split k)
+            _bow(pts[:max(k - drop, 0)] if side == 0 else pts[k + drop:], lines[2 * s + side])
     return _quad(lines, min_points, max_outside_share, cov_scale, cov_floor)
 
 
@@ -461,36 +462,35 @@ def _bow(points: np.ndarray, row: np.ndarray) -> None:
     coefficients' covariance over sigma²; ``_bow_variance``); zeros with fewer than 6."""
     nx, ny, d, sigma, cx, cy = row[0], row[1], row[2], row[3], row[5], row[6]
     band = max(INLIER_SIGMAS * sigma, 0.25)
-    m = np.zeros((3, 3))
-    rhs = np.zeros(3)
-    count = 0
+    n = s1 = s2 = s3 = s4 = r0 = r1 = r2 = 0.0
     for i in range(points.shape[0]):
         r = nx * points[i, 0] + ny * points[i, 1] - d
         if abs(r) > band:
             continue
         t = -ny * (points[i, 0] - cx) + nx * (points[i, 1] - cy)
         t2 = t * t
-        m[0, 0] += 1.0
-        m[0, 1] += t
-        m[0, 2] += t2
-        m[1, 2] += t * t2
-        m[2, 2] += t2 * t2
-        rhs[0] += r
-        rhs[1] += r * t
-        rhs[2] += r * t2
-        count += 1
-    row[11:20] = 0.0
-    if count < 6:
-        return
-    m[1, 1] = m[0, 2]
-    m[1, 0], m[2, 0], m[2, 1] = m[0, 1], m[0, 2], m[1, 2]
-    if abs(np.linalg.det(m)) <= 1e-9 * m[0, 0] * m[1, 1] * m[2, 2]:
-        return  # (the points bunched: no curvature to tell)
-    inv = np.linalg.inv(m)
-    a = inv @ rhs
-    row[11], row[12], row[13] = a[0], a[1], a[2]
-    row[14], row[15], row[16] = inv[0, 0], inv[0, 1], inv[0, 2]
-    row[17], row[18], row[19] = inv[1, 1], inv[1, 2], inv[2, 2]
+        n += 1.0
+        s1 += t
+        s2 += t2
+        s3 += t * t2
+        s4 += t2 * t2
+        r0 += r
+        r1 += r * t
+        r2 += r * t2
+    for c in range(11, 20):
+        row[c] = 0.0
+    # the normal matrix [[n, s1, s2], [s1, s2, s3], [s2, s3, s4]], inverted by cofactors
+    c00, c01, c02 = s2 * s4 - s3 * s3, s2 * s3 - s1 * s4, s1 * s3 - s2 * s2
+    c11, c12, c22 = n * s4 - s2 * s2, s1 * s2 - n * s3, n * s2 - s1 * s1
+    det = n * c00 + s1 * c01 + s2 * c02
+    if n < 6.0 or det <= 1e-9 * n * s2 * s4:
+        return  # (too few, or the points bunched: no curvature to tell)
+    i00, i01, i02, i11, i12, i22 = c00 / det, c01 / det, c02 / det, c11 / det, c12 / det, \
+        c22 / det
+    row[11] = i00 * r0 + i01 * r1 + i02 * r2
+    row[12] = i01 * r0 + i11 * r1 + i12 * r2
+    row[13] = i02 * r0 + i12 * r1 + i22 * r2
+    row[14], row[15], row[16], row[17], row[18], row[19] = i00, i01, i02, i11, i12, i22
 
 
 @njit(inline="always")
