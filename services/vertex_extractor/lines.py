@@ -551,7 +551,11 @@ def _quad(lines: np.ndarray, min_points: int, max_outside_share: float, cov_scal
         cyy = cov_scale * (j10 * j10 * va + j11 * j11 * vb) + cov_floor + (
             j10 * j10 * ba + j11 * j11 * bb)
         cov[vi, 0, 0], cov[vi, 0, 1], cov[vi, 1, 0], cov[vi, 1, 1] = cxx, cxy, cxy, cyy
-        sigma_max = max(sigma_max, math.sqrt(largest_variance(cxx, cxy, cyy)))
+        # (the largest sigma, which refuses a marker too uncertain, without the bow: a row
+        # scan refused for a shadow's bend would leave the column scan unchecked)
+        sigma_max = max(sigma_max, math.sqrt(largest_variance(
+            cxx - (j00 * j00 * ba + j01 * j01 * bb), cxy - (j00 * j10 * ba + j01 * j11 * bb),
+            cyy - (j10 * j10 * ba + j11 * j11 * bb))))
     return FIT_OK, v, math.sqrt(sq_all / max(count, 1)), cov, sigma_max
 
 
