@@ -492,13 +492,13 @@ class RhombusExtractor:
             cameras = [solved.camera(learner.width, learner.height), *learner.cameras()]
             self._learned_tests = (solved, [ShapeTest(c, self._geometry, self.params.shape)
                                             for c in cameras])
-        reasons = []
+        first = ""
         for test in self._learned_tests[1]:
             reason = test.refusal(det.vertices_px, det.vertices_cov_px2)
             if not reason:
                 return ""
-            reasons.append(reason)
-        return reasons[0]
+            first = first or reason
+        return first
 
     def _learn_from(self, image: np.ndarray, det: Detection) -> Detection:
         """``det``, after the camera learner (no intrinsics, ``learn_camera``) has seen it if

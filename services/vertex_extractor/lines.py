@@ -542,20 +542,20 @@ def _quad(lines: np.ndarray, min_points: int, max_outside_share: float, cov_scal
         vb = b[3] ** 2 * (1.0 / b[4] + sb * sb / max(b[7], 1e-9))
         j00, j01 = b[1] / det, -a[1] / det
         j10, j11 = -b[0] / det, a[0] / det
-        # (+ a bowed edge's bias at the vertex, not scaled: the points' sharing does not
-        # make it, and their number does not average it out)
+        cxx = cov_scale * (j00 * j00 * va + j01 * j01 * vb) + cov_floor
+        cxy = cov_scale * (j00 * j10 * va + j01 * j11 * vb)
+        cyy = cov_scale * (j10 * j10 * va + j11 * j11 * vb) + cov_floor
+        # the largest sigma, which refuses a marker too uncertain, from the points' noise
+        # alone: with the bow, a row scan bent by a shadow's boundary was refused and left
+        # the column scan unchecked
+        sigma_max = max(sigma_max, math.sqrt(largest_variance(cxx, cxy, cyy)))
+        # the covariance with a bowed edge's bias at the vertex, not scaled (the points'
+        # sharing does not make it, and their number does not average it out)
         ba, bb = _bow_variance(a, sa, cov_scale), _bow_variance(b, sb, cov_scale)
-        cxx = cov_scale * (j00 * j00 * va + j01 * j01 * vb) + cov_floor + (
-            j00 * j00 * ba + j01 * j01 * bb)
-        cxy = cov_scale * (j00 * j10 * va + j01 * j11 * vb) + j00 * j10 * ba + j01 * j11 * bb
-        cyy = cov_scale * (j10 * j10 * va + j11 * j11 * vb) + cov_floor + (
-            j10 * j10 * ba + j11 * j11 * bb)
+        cxx += j00 * j00 * ba + j01 * j01 * bb
+        cxy += j00 * j10 * ba + j01 * j11 * bb
+        cyy += j10 * j10 * ba + j11 * j11 * bb
         cov[vi, 0, 0], cov[vi, 0, 1], cov[vi, 1, 0], cov[vi, 1, 1] = cxx, cxy, cxy, cyy
-        # (the largest sigma, which refuses a marker too uncertain, without the bow: a row
-        # scan refused for a shadow's bend would leave the column scan unchecked)
-        sigma_max = max(sigma_max, math.sqrt(largest_variance(
-            cxx - (j00 * j00 * ba + j01 * j01 * bb), cxy - (j00 * j10 * ba + j01 * j11 * bb),
-            cyy - (j10 * j10 * ba + j11 * j11 * bb))))
     return FIT_OK, v, math.sqrt(sq_all / max(count, 1)), cov, sigma_max
 
 
