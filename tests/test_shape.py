@@ -202,13 +202,15 @@ def test_the_service_takes_the_intrinsics_from_the_bus(router, make_bus, tmp_pat
 
 
 @pytest.mark.slow  # starts the service (about 3 s)
-def test_the_service_asks_camera_intrinsics_at_its_start(router, make_bus, tmp_path):
-    """Intrinsics already served (the frame source's or the simulator's queryable): the
-    first frame is tested with them."""
+@pytest.mark.parametrize("served", ["before", "after its start"])
+def test_the_service_asks_camera_intrinsics_until_served(router, make_bus, tmp_path, served):
+    """Intrinsics served by a queryable only (the frame source's, the simulator's), before
+    the service starts or after its first frames: the frames are then tested with them."""
     dep = parse_deployment({"zenoh": {"connect": [router], "multicast_scouting": False},
                             "services": {"vertex_extractor": {}}}, tmp_path / "dep.toml")
     bus = make_bus("camera")
-    bus.declare_queryable(INTRINSICS, CAM.to_message)
+    if served == "before":
+        bus.declare_queryable(INTRINSICS, CAM.to_message)
 
     async def go() -> None:
         out = bus.subscribe(VERTICES, MarkerVertices, latest=False, queue=64)
@@ -217,12 +219,15 @@ def test_the_service_asks_camera_intrinsics_at_its_start(router, make_bus, tmp_p
             await wait_alive_async(bus.session, "vertex_extractor")
             await wait_matched(bus, FRAME)
             await asyncio.sleep(0.5)  # its question is answered at once, not waited for
-            for seq in range(1, 30):
+            for seq in range(1, 60):
                 header, payload = encode_frame(_frame(_card(*CARDS[1])), seq, 10**18 + seq)
                 bus.put_frame(header, payload)
                 msg = await out.recv(timeout=120)  # the first waits for warm-up
                 if "best pose" in msg.reason:
                     break
+                if seq == 1 and served != "before":
+                    assert "best pose" not in msg.reason  # no intrinsics yet
+                    bus.declare_queryable(INTRINSICS, CAM.to_message)
                 await asyncio.sleep(0.2)
             assert not msg.found and "its best pose reprojects" in msg.reason, msg.reason
         finally:

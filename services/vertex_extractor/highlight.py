@@ -50,7 +50,10 @@ learned the camera from the marker (``learned_camera.py``), its focal length ± 
 principal point (found on 95-96 % of the highlight's views, at most 0.3 % wrong); before
 that, the focal lengths ``ASSUMED_FOCAL_W`` (times the frame's width) with the principal
 point at the frame's centre (the frame must be the camera's whole image, not a crop): 90-93 %
-instead of 85-88 %, at most 0.3 % wrong.
+instead of 85-88 %, at most 0.3 % wrong. Under these, a pose must see three edges over
+``MIN_SUPPORT`` of their length: the principal point assumed is not varied, and a pose on two
+edges and the vertices between them followed it (seed 2024, view 213: two vertices 14-15 px
+off at a reported 0.3 px; 3 of 900 views lost, none wrong).
 
 The same fit checks a marker the scans *found* with clipped white within ``CHECK_NEAR_PX``
 of a vertex (``start_px``: started from their vertices, with ``CHECK_START_BLUR_PX``; the
@@ -295,7 +298,10 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
 
     def as_pose(cam: CameraModel) -> HighlightFit | str:
         tie = POSE_TIE if cam is camera else POSE_TIE_ASSUMED
-        return _as_pose(residual, p, v, least, hidden, cam, model_m, corner, f_scale, x, y, tie)
+        # (under the cameras assumed, the edges seen must be three: seen_in)
+        seen_in = (seen, x0, y0) if camera is None and assumed is None else None
+        return _as_pose(residual, p, v, least, hidden, cam, model_m, corner, f_scale, x, y, tie,
+                        seen_in)
     if camera is not None:
         posed = as_pose(camera)
         return posed if not isinstance(posed, str) else f"{free}; as the rhombus's pose: {posed}"
@@ -333,14 +339,22 @@ def assumed_camera(width: int, height: int, focal_w: float) -> CameraModel:
 def _as_pose(residual: Callable[[np.ndarray, bool], tuple[np.ndarray, np.ndarray | None]],
              p: np.ndarray, v: np.ndarray, least: int, hidden: int, camera: CameraModel,
              model_m: np.ndarray, corner: np.ndarray, f_scale: float, x: np.ndarray,
-             y: np.ndarray, tie: float) -> HighlightFit | str:
+             y: np.ndarray, tie: float,
+             seen_in: tuple[np.ndarray, int, int] | None = None) -> HighlightFit | str:
     """The free fit (p, its vertices v in the crop at ``corner``) fitted again as the rhombus
     ``model_m`` seen by ``camera`` (``_fit_pose``, ambiguous within ``tie``) and judged
-    (blur, the edges' bands but ``hidden``'s, ``MAX_POSE_SIGMA_PX``); or why not."""
+    (blur, the edges' bands but ``hidden``'s, ``MAX_POSE_SIGMA_PX``); or why not. With
+    ``seen_in`` (the fit's seen pixels and its box's corner in the crop), a pose with a
+    second edge seen under ``MIN_SUPPORT`` of its length is refused too."""
     posed = _fit_pose(residual, p, v, least, camera, model_m, corner, f_scale, tie)
     if isinstance(posed, str):
         return posed
     p, r, J, v, to_vertices = posed
+    if seen_in is not None:
+        share = _seen_share(v, *seen_in)
+        if share[(second := int(np.argsort(share)[1]))] < MIN_SUPPORT:
+            return (f"the {EDGE_NAMES[second]} edge is under the highlight too (seen over "
+                    f"{share[second]:.0%} of its length): two edges hidden")
     if (blur := abs(p[-3]) + 0.3) > MAX_BLUR_PX:
         return f"its fitted blur {blur:.1f} px is over {MAX_BLUR_PX} px"
     worst, edge = shadow.band_rms(v, x, y, r, float(p[-2]), MAX_BAND_RMS, hidden)

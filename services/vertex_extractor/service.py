@@ -99,16 +99,23 @@ class IntrinsicsFollower:
                              "without intrinsics", width, height, camera.width, camera.height)
 
 
+ASK_EVERY_S = 2.0  # camera/intrinsics asked this often until answered (s)
+
+
 async def _ask_intrinsics(ctx: ServiceContext, follower: IntrinsicsFollower) -> None:
-    """Ask camera/intrinsics once (the pose estimator's queryable); quietly none if nobody
-    serves them (the topic may still bring them)."""
-    try:
-        replies = await ctx.bus.get(INTRINSICS, CameraIntrinsics, timeout=2.0)
-    except Exception as err:  # a closing session: the topic is still followed
-        ctx.log.debug("asking camera/intrinsics failed: %s", err)
-        return
-    if replies and follower.extractor.intrinsics is None:
-        follower.take(replies[0])
+    """Ask camera/intrinsics (the frame source's, the simulator's or the calibration's
+    queryable) every ``ASK_EVERY_S`` until they come, by answer or on the topic: a server
+    started after this service is still heard. Quietly none while nobody serves them."""
+    while follower.extractor.intrinsics is None:
+        try:
+            replies = await ctx.bus.get(INTRINSICS, CameraIntrinsics, timeout=ASK_EVERY_S)
+        except Exception as err:  # a closing session: the topic is still followed
+            ctx.log.debug("asking camera/intrinsics failed: %s", err)
+            return
+        if replies and follower.extractor.intrinsics is None:
+            follower.take(replies[0])
+            return
+        await asyncio.sleep(ASK_EVERY_S)
 
 
 def _tell_learned(extractor: RhombusExtractor, told: Solved | None, log: logging.Logger
