@@ -51,7 +51,7 @@ principal point (found on 95-96 % of the highlight's views, at most 0.3 % wrong)
 that, the focal lengths ``ASSUMED_FOCAL_W`` (times the frame's width) with the principal
 point at the frame's centre (the frame must be the camera's whole image, not a crop): 90-93 %
 instead of 85-88 %, at most 0.3 % wrong. Under these, a pose must see three edges over
-``MIN_SUPPORT`` of their length: the principal point assumed is not varied, and a pose on two
+``MIN_SECOND_SUPPORT`` of their length: the principal point assumed is not varied, and a pose on two
 edges and the vertices between them followed it (seed 2024, view 213: two vertices 14-15 px
 off at a reported 0.3 px; 3 of 900 views lost, none wrong).
 
@@ -93,6 +93,7 @@ MASK_PX = 2              # pixels this near a clipped one are left out of the fi
 MARGIN_PX = 14           # the fitted box: the start's plus this (px)
 MIN_MARKER_PX = 20       # the blob's unclipped marker pixels, at least
 MIN_SUPPORT = 0.2        # every edge's share seen (not masked), at least (but as a pose)
+MIN_SECOND_SUPPORT = 0.1  # under assumed cameras, a pose's second least seen edge, at least
 POSE_STARTS = 3          # the poses fitted, from the starts that fit best
 POSE_TIE = 0.005         # another pose whose cost is within this share of the best ...
 POSE_TIE_ASSUMED = 0.01  # ... (a camera assumed or learned: its error moves the poses' costs;
@@ -345,14 +346,14 @@ def _as_pose(residual: Callable[[np.ndarray, bool], tuple[np.ndarray, np.ndarray
     ``model_m`` seen by ``camera`` (``_fit_pose``, ambiguous within ``tie``) and judged
     (blur, the edges' bands but ``hidden``'s, ``MAX_POSE_SIGMA_PX``); or why not. With
     ``seen_in`` (the fit's seen pixels and its box's corner in the crop), a pose with a
-    second edge seen under ``MIN_SUPPORT`` of its length is refused too."""
+    second edge seen under ``MIN_SECOND_SUPPORT`` of its length is refused too."""
     posed = _fit_pose(residual, p, v, least, camera, model_m, corner, f_scale, tie)
     if isinstance(posed, str):
         return posed
     p, r, J, v, to_vertices = posed
     if seen_in is not None:
         share = _seen_share(v, *seen_in)
-        if share[(second := int(np.argsort(share)[1]))] < MIN_SUPPORT:
+        if share[(second := int(np.argsort(share)[1]))] < MIN_SECOND_SUPPORT:
             return (f"the {EDGE_NAMES[second]} edge is under the highlight too (seen over "
                     f"{share[second]:.0%} of its length): two edges hidden")
     if (blur := abs(p[-3]) + 0.3) > MAX_BLUR_PX:
