@@ -1,7 +1,7 @@
 """The ``vertex_extractor`` service: ``camera/frame`` (latest only) -> ``marker/vertices``.
 
 With the camera's intrinsics (``intrinsics``, a file, or else ``camera/intrinsics``, asked
-once at the start and followed, as the pose estimator takes them) each detection's shape is
+every ``ASK_EVERY_S`` until answered and followed, as the pose estimator takes them) each detection's shape is
 tested against the deployment's rhombus seen by that camera (``shape.py``); without them, or
 on frames of another size, the weak-perspective test alone, and the extractor learns the
 camera from the marker for a marker under a highlight (``learned_camera.py``; logged when
@@ -44,7 +44,8 @@ class Settings(ServiceSettings, ExtractorParams):
     colour_file: RelPath | None = Field(default=None, description=(
         "a colour model from shepherd marker learn; replaces colour"))
     intrinsics: RelPath | None = Field(default=None, description=(
-        "TOML file for the shape test; else taken from camera/intrinsics when served"))
+        "TOML file for the shape test; else taken from camera/intrinsics when served (asked "
+        "every 2 s until answered, and followed)"))
 
     @model_validator(mode="after")
     def _load_colour(self) -> Settings:
