@@ -6,6 +6,8 @@ learner offers a camera only where a solve's older and newer halves agree, from 
 confident views, and none from a blend of two cameras.
 On webcam renders: tests/test_highlight_fit.py."""
 
+from collections.abc import Generator
+
 import cv2
 import numpy as np
 import pytest
@@ -143,6 +145,40 @@ def test_a_half_seen_face_on_agrees_with_nothing() -> None:
     assert learner.camera() is None
     assert isinstance(learner.last, str) and learner.last.startswith("a half of the views"), \
         learner.last
+
+
+def test_small_markers_are_not_learned_from() -> None:
+    """Views whose marker is under ``MIN_MARKER_PX`` tall (a 420 px camera, 0.7-0.8 m
+    away: 35-40 px) are not kept: too little perspective to tell a focal length."""
+    views, covs = _views(120, 420.0, 320.0, 240.0, seed=12, max_tilt_deg=50.0)
+    tall = np.linalg.norm(views[:, 3] - views[:, 1], axis=1)
+    learner = CameraLearner(RHOMBUS_M, W, H)
+    for v, c in zip(views, covs, strict=True):
+        learner.add(v, c)
+    small = int((tall < learned_camera.MIN_MARKER_PX).sum())
+    assert 10 <= small < 110 and learner._kept == 120 - small
+
+
+def test_failed_solves_in_a_row_back_off() -> None:
+    """Views that fit no camera (noise of 1.5 px stated as 0.15 px): each solve fails; the
+    first ``QUICK_RETRIES`` are retried after ``SOLVE_EVERY`` new views, then each waits
+    twice as long as the one before, up to ``MAX_SOLVE_EVERY``."""
+    views, _ = _views(600, 757.0, 390.0, 260.0, seed=13, noise_px=1.5)
+    covs = np.broadcast_to(NOISE_PX ** 2 * np.eye(2), (600, 4, 2, 2))
+    waits: list[int] = []
+
+    class Probe(CameraLearner):
+        def _solving(self, views: np.ndarray, covs: np.ndarray) -> Generator[None, None, None]:
+            yield from super()._solving(views, covs)
+            assert self.camera() is None and isinstance(self.last, str), self.last
+            waits.append(self._every)  # (new views before the next solve)
+
+    learner = Probe(RHOMBUS_M, W, H)
+    for v, c in zip(views, covs, strict=True):
+        learner.add(v, c)
+    every, quick = learned_camera.SOLVE_EVERY, learned_camera.QUICK_RETRIES
+    assert waits[:quick + 3] == [every] * quick + [2 * every, 4 * every,
+                                                   learned_camera.MAX_SOLVE_EVERY], waits
 
 
 def test_the_service_logs_the_learned_camera_when_learned_and_when_it_moves(

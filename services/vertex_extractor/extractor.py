@@ -695,7 +695,7 @@ class RhombusExtractor:
         (``highlight.py``), if the fit is taken and passes the tests any detection passes;
         else why not (the scans' refusal stands)."""
         c = self.params.colour
-        learned = self._learner.cameras() if self._learner is not None and \
+        learned = self._learner.cameras(pp_spread=True) if self._learner is not None and \
             (self._learner.width, self._learner.height) == image.shape[1::-1] else []
         camera, model_m = (test.camera, test.marker_points) if test is not None else \
             (None, self._marker_m)

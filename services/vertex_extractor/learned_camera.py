@@ -17,7 +17,12 @@ it offers their combination (``camera``) where the halves agree within their sta
 errors or within the band used (``AGREE_CHI2``, ``AGREE_PP_W``: one camera, not a blend of
 two after a zoom or a swap). What for: a marker under a highlight whose hidden edge depends
 on the camera (``highlight.fit``) is fitted under the learned camera's focal length ±
-``BAND`` instead of assumed ones over the range webcams have. Pure numpy and OpenCV; no bus.
+``BAND`` and its principal point ± ``PP_SPREAD_W`` x the width instead of assumed ones over
+the range webcams have. Markers under ``MIN_MARKER_PX`` tall are not learned from, and after
+``QUICK_RETRIES`` failed solves in a row the next waits twice as long: views that fit no
+camera (small markers, a rolling shutter's) had kept a solve under way (about 1.4 ms a
+step then, 0.85 ms now that the Jacobian's 18 evaluations are one) on most frames. Pure
+numpy and OpenCV; no bus.
 """
 
 from __future__ import annotations
@@ -37,10 +42,14 @@ T = TypeVar("T")
 MIN_VIEWS = 40           # distinct views before the first solve (two halves of 20)
 SOLVE_EVERY = 20         # new views between solves; doubled after each solve offered, up to
 MAX_SOLVE_EVERY = 80     # this (a camera changed is noticed within as many new views)
+QUICK_RETRIES = 2        # failed solves in a row retried after SOLVE_EVERY; then backing off
 MIN_SOLVED = 12          # a solve's views, at least, after those far off are left out
 MAX_VIEWS = 120          # the newest views kept
 STEPS_PER_ADD = 3        # a solve under way is worked on this many steps a detection (up to
                          # 6 ms a detection: a solve of both halves over 10-20 frames)
+MIN_MARKER_PX = 40.0     # a detection whose top-to-bottom diagonal is shorter (px) is not
+                         # learned from: 25-40 px markers' views fit no camera (chi² 4-5 per
+                         # degree of freedom), and kept a failing solve under way on most frames
 NEW_VIEW_PX = 5.0        # a view is new when a vertex's coordinate is this far (px) from its
                          # place in every view kept
 MAX_SIGMA_PX = 0.5       # a detection with a vertex's variance (its covariance's trace) over
@@ -56,6 +65,9 @@ AGREE_CHI2 = 16.3        # the halves' solves agree: their differences' chi² (3
 AGREE_PP_W = 0.03        # ... their focal lengths within BAND and principal points within
                          # this share of the width (their standard errors understate the
                          # renders' halves' scatter: 757 and 771 px apart at 0.4 % each)
+PP_SPREAD_W = 0.02       # ... and its principal point moved this share of the width each way
+                         # (the renders' learned principal points were 4-18 px off, at
+                         # standard errors of 1-3 px: a pose on three vertices followed it)
 BAND = 0.03              # the learned focal length's band the highlight's pose is fitted over
 HUBER = 3.0              # whitened errors beyond this weigh as Huber's
 MAX_ITERATIONS = 50       # Levenberg-Marquardt's steps, at most
@@ -196,13 +208,20 @@ def _refine(M: np.ndarray, views: np.ndarray, L: np.ndarray,
     c = np.array(start, float)
     mx, my = M[:, 0], M[:, 1]
 
-    def whitened(c: np.ndarray, P: np.ndarray) -> np.ndarray:  # (n, 8)
-        R = _rotations(P[:, :3])
-        X = R[:, None, :, 0] * mx[None, :, None] + R[:, None, :, 1] * my[None, :, None] \
-            + P[:, None, 3:]  # (n, 4, 3) m, the camera's frame
+    def whitened_many(c: np.ndarray, P: np.ndarray) -> np.ndarray:  # (m, n, 8)
+        """The whitened errors of m cameras c (m, 3) and pose sets P (m, n, 6) at once."""
+        m = c.shape[0]
+        R = _rotations(P[..., :3].reshape(-1, 3)).reshape(m, n, 3, 3)
+        X = R[:, :, None, :, 0] * mx[None, None, :, None] \
+            + R[:, :, None, :, 1] * my[None, None, :, None] \
+            + P[:, :, None, 3:]  # (m, n, 4, 3) m, the camera's frame
         z = np.maximum(X[..., 2], 1e-6)
-        e = np.stack([c[0] * X[..., 0] / z + c[1], c[0] * X[..., 1] / z + c[2]], -1) - views
-        return np.einsum("nkij,nkj->nki", L, e).reshape(n, 8)
+        f, cx, cy = (c[:, k, None, None] for k in range(3))
+        e = np.stack([f * X[..., 0] / z + cx, f * X[..., 1] / z + cy], -1) - views
+        return np.einsum("nkij,mnkj->mnki", L, e).reshape(m, n, 8)
+
+    def whitened(c: np.ndarray, P: np.ndarray) -> np.ndarray:  # (n, 8)
+        return whitened_many(c[None], P[None])[0]
 
     def cost(r: np.ndarray) -> float:
         a = np.abs(r)
@@ -212,17 +231,12 @@ def _refine(M: np.ndarray, views: np.ndarray, L: np.ndarray,
     h_p = np.array([1e-6, 1e-6, 1e-6, 1e-7, 1e-7, 1e-7])
     r = whitened(c, P)
     lam = 1e-3
+    steps = np.r_[np.full(3, h_c), h_p]  # the central differences' steps, (f, cx, cy) then
+    D = np.vstack([np.diag(steps), -np.diag(steps)])  # each view's pose: (18, 9)
     for _ in range(MAX_ITERATIONS):
-        Jc = np.empty((n, 8, 3))
-        for j in range(3):
-            d = np.zeros(3)
-            d[j] = h_c
-            Jc[:, :, j] = (whitened(c + d, P) - whitened(c - d, P)) / (2 * h_c)
-        Jp = np.empty((n, 8, 6))
-        for j in range(6):
-            d = np.zeros(6)
-            d[j] = h_p[j]
-            Jp[:, :, j] = (whitened(c, P + d) - whitened(c, P - d)) / (2 * h_p[j])
+        w18 = whitened_many(c + D[:, :3], P[None] + D[:, None, 3:])  # (18, n, 8), one call
+        J = ((w18[:9] - w18[9:]) / (2.0 * steps)[:, None, None]).transpose(1, 2, 0)
+        Jc, Jp = J[:, :, :3], J[:, :, 3:]  # (n, 8, 3) and (n, 8, 6)
         w = np.minimum(1.0, HUBER / np.maximum(np.abs(r), 1e-12))  # (n, 8) IRLS weights
         App = np.einsum("nki,nk,nkj->nij", Jp, w, Jp)
         Apc = np.einsum("nki,nk,nkj->nij", Jp, w, Jc)
@@ -323,6 +337,7 @@ class CameraLearner:
         self._next = 0  # the ring's slot for the next view
         self._new = 0
         self._every = SOLVE_EVERY
+        self._failed = 0  # solves failed in a row
         self._work: Generator[None, None, None] | None = None  # the solve under way
         #: the newest solve, or why it is not a usable camera
         self.last: Solved | str = f"fewer than {MIN_VIEWS} distinct views of the marker"
@@ -347,6 +362,8 @@ class CameraLearner:
         last = self._vertices[self._next - 1]  # (a tracked marker: mostly where it was)
         if self._kept and float(np.abs(last - vertices_px).max()) < NEW_VIEW_PX:
             return
+        if float(np.hypot(*(vertices_px[3] - vertices_px[1]))) < MIN_MARKER_PX:
+            return  # (a small marker: too little perspective to tell a focal length)
         if not (np.isfinite(vertices_px).all() and np.isfinite(cov_px2).all()) or \
                 float((cov_px2[:, 0, 0] + cov_px2[:, 1, 1]).max()) > MAX_SIGMA_PX ** 2 or \
                 not ((cov_px2[:, 0, 0] > 0.0) & (cov_px2[:, 0, 0] * cov_px2[:, 1, 1]
@@ -375,7 +392,12 @@ class CameraLearner:
         older = yield from solving(self.model_m, views[:k], covs[:k], self.width, self.height)
         newer = yield from solving(self.model_m, views[k:], covs[k:], self.width, self.height)
         self._agreed = None
-        every, self._every = self._every, SOLVE_EVERY
+        # (a failed solve: the next one SOLVE_EVERY new views on, but after QUICK_RETRIES
+        # failures in a row twice as many as this one's, up to MAX_SOLVE_EVERY: views that fit
+        # no pinhole camera, a rolling shutter's, kept a solve under way on most frames)
+        every, self._failed = self._every, self._failed + 1
+        self._every = SOLVE_EVERY if self._failed <= QUICK_RETRIES else min(
+            2 * every, MAX_SOLVE_EVERY)
         if isinstance(older, str) or isinstance(newer, str):
             self.last = f"a half of the views: {older if isinstance(older, str) else newer}"
             return
@@ -394,16 +416,22 @@ class CameraLearner:
                          f"{older.cy:.0f}) and ({newer.cx:.0f}, {newer.cy:.0f}) px")
         else:
             self.last = self._agreed = whole
-            self._every = min(2 * every, MAX_SOLVE_EVERY)
+            self._every, self._failed = min(2 * every, MAX_SOLVE_EVERY), 0
 
     def camera(self) -> Solved | None:
         """The newest solve, if it is a usable camera whose halves agree."""
         return self._agreed
 
-    def cameras(self) -> list[CameraModel]:
-        """The learned camera at the ends of its focal length's band (``BAND``); none until
-        learned."""
+    def cameras(self, pp_spread: bool = False) -> list[CameraModel]:
+        """The learned camera at the ends of its focal length's band (``BAND``), and with
+        ``pp_spread`` at its focal length with the principal point moved ``PP_SPREAD_W`` x
+        the width right, left, down and up (the highlight's pose fits); none until learned."""
         s = self._agreed
         if s is None:
             return []
-        return [s.camera(self.width, self.height, s.f * (1.0 + k * BAND)) for k in (-1, 1)]
+        cams = [s.camera(self.width, self.height, s.f * (1.0 + k * BAND)) for k in (-1, 1)]
+        if pp_spread:
+            d = PP_SPREAD_W * self.width
+            cams += [CameraModel.pinhole(s.f, s.cx + dx, s.cy + dy, self.width, self.height)
+                     for dx, dy in ((d, 0.0), (-d, 0.0), (0.0, d), (0.0, -d))]
+        return cams

@@ -1,7 +1,8 @@
 """The ``vertex_extractor`` service: ``camera/frame`` (latest only) -> ``marker/vertices``.
 
 With the camera's intrinsics (``intrinsics``, a file, or else ``camera/intrinsics``, asked
-every ``ASK_EVERY_S`` until answered and followed, as the pose estimator takes them) each detection's shape is
+every ``ASK_EVERY_S`` until answered, and followed, as the pose estimator takes them) each
+detection's shape is
 tested against the deployment's rhombus seen by that camera (``shape.py``); without them, or
 on frames of another size, the weak-perspective test alone, and the extractor learns the
 camera from the marker for a marker under a highlight (``learned_camera.py``; logged when
