@@ -208,9 +208,9 @@ def test_without_intrinsics_the_camera_learned_from_the_marker_gives_the_hidden_
     (refused above), found 0.75 px off at 0.77 px under the focal lengths alone, is refused
     under the principal point's spread too (0.97 px). A pink card the weak shape test takes
     for the marker (the bench's first posed card) is refused on a cold search under the
-    learned camera, as with intrinsics. After a zoom to 500 px the new camera is learned, nothing wrong meanwhile.
-    The camera stays through ``reset``; intrinsics take over from it; with
-    ``learn_camera`` off nothing is learned."""
+    learned camera, as with intrinsics. After a zoom to 500 px the new camera is learned,
+    nothing wrong meanwhile. The camera stays through ``reset``; intrinsics take over from
+    it; with ``learn_camera`` off nothing is learned."""
     from services.sim.scenes import random_views
     from services.tools.bench.vertices import posed_cards
     ex = RhombusExtractor()
