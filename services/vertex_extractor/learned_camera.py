@@ -45,8 +45,8 @@ MAX_SOLVE_EVERY = 80     # this (a camera changed is noticed within as many new 
 QUICK_RETRIES = 2        # failed solves in a row retried after SOLVE_EVERY; then backing off
 MIN_SOLVED = 12          # a solve's views, at least, after those far off are left out
 MAX_VIEWS = 120          # the newest views kept
-STEPS_PER_ADD = 3        # a solve under way is worked on this many steps a detection (up to
-                         # 6 ms a detection: a solve of both halves over 10-20 frames)
+STEPS_PER_ADD = 3        # a solve under way is worked on this many steps a new view kept
+                         # (up to 3 ms: a solve of both halves over 10-50 new views)
 MIN_MARKER_PX = 40.0     # a detection whose top-to-bottom diagonal is shorter (px) is not
                          # learned from: 25-40 px markers' views fit no camera (chi² 4-5 per
                          # degree of freedom), and kept a failing solve under way on most frames
@@ -324,8 +324,9 @@ def combined(a: Solved, b: Solved) -> Solved:
 class CameraLearner:
     """The camera of ``width`` x ``height`` px frames, learned from detections of the
     rhombus ``model_m`` (4, 3) m (``add``); ``camera()`` once the halves of a solve agree.
-    A solve due is worked on ``STEPS_PER_ADD`` steps at each ``add`` (its older half, then
-    its newer, then judged): no frame pays more than a few milliseconds for it."""
+    A solve due is worked on ``STEPS_PER_ADD`` steps at each ``add`` of a new view kept (its
+    older half, then its newer, then judged): no frame pays more than a few milliseconds for
+    it, and a tracked marker standing still nothing."""
 
     def __init__(self, model_m: np.ndarray, width: int, height: int) -> None:
         self.model_m = np.asarray(model_m, float)
@@ -347,18 +348,8 @@ class CameraLearner:
         """A detection's vertices (4, 2) px and covariance (4, 2, 2) px²: kept if confident
         (every vertex's covariance positive definite, its trace at most ``MAX_SIGMA_PX``²)
         and a new view (a vertex's coordinate at least ``NEW_VIEW_PX`` from its place in every
-        view kept); a solve under way is worked on, or one begun when due."""
-        if self._work is not None:
-            for _ in range(STEPS_PER_ADD):
-                try:
-                    next(self._work)
-                except StopIteration:
-                    self._work = None
-                    break
-                except Exception as err:  # (OpenCV or numpy on views it cannot take)
-                    self._work, self._agreed = None, None
-                    self.last = f"the solve failed: {err}"
-                    break
+        view kept); then a solve under way is worked on, or one begun when due (only a view
+        kept pays for the solve: a tracked marker standing still pays nothing)."""
         last = self._vertices[self._next - 1]  # (a tracked marker: mostly where it was)
         if self._kept and float(np.abs(last - vertices_px).max()) < NEW_VIEW_PX:
             return
@@ -377,6 +368,17 @@ class CameraLearner:
         self._next = (self._next + 1) % MAX_VIEWS
         self._kept = min(self._kept + 1, MAX_VIEWS)
         self._new += 1
+        if self._work is not None:
+            for _ in range(STEPS_PER_ADD):
+                try:
+                    next(self._work)
+                except StopIteration:
+                    self._work = None
+                    break
+                except Exception as err:  # (OpenCV or numpy on views it cannot take)
+                    self._work, self._agreed = None, None
+                    self.last = f"the solve failed: {err}"
+                    break
         if self._work is None and self._kept >= MIN_VIEWS and self._new >= self._every:
             self._new = 0
             order = np.roll(np.arange(self._kept), -self._next if self._kept == MAX_VIEWS
