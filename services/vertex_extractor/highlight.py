@@ -53,7 +53,7 @@ point at the frame's centre (the frame must be the camera's whole image, not a c
 instead of 85-88 %, at most 0.3 % wrong. Under these, a pose must see three edges over
 ``MIN_SECOND_SUPPORT`` of their length: the principal point assumed is not varied, and a pose on two
 edges and the vertices between them followed it (seed 2024, view 213: two vertices 14-15 px
-off at a reported 0.3 px; 3 of 900 views lost, none wrong).
+off at a reported 0.3 px; 1 of 900 views lost, none wrong).
 
 The same fit checks a marker the scans *found* with clipped white within ``CHECK_NEAR_PX``
 of a vertex (``start_px``: started from their vertices, with ``CHECK_START_BLUR_PX``; the

@@ -2,8 +2,8 @@
 
 With the camera's intrinsics (``intrinsics``, a file, or else ``camera/intrinsics``, asked
 every ``ASK_EVERY_S`` until answered, and followed, as the pose estimator takes them) each
-detection's shape is
-tested against the deployment's rhombus seen by that camera (``shape.py``); without them, or
+detection's shape is tested against the deployment's rhombus seen by that camera
+(``shape.py``); without them, or
 on frames of another size, the weak-perspective test alone, and the extractor learns the
 camera from the marker for a marker under a highlight (``learned_camera.py``; logged when
 learned). Each frame is extracted on the
@@ -36,6 +36,8 @@ from services.vertex_extractor.extractor import (
 from services.vertex_extractor.learn import load_colour_file
 from services.vertex_extractor.learned_camera import BAND, Solved
 
+ASK_EVERY_S = 2.0  # camera/intrinsics asked this often until answered (s)
+
 
 class Settings(ServiceSettings, ExtractorParams):
     """The extractor's parameters (``ExtractorParams``), and ``colour_file``: a colour model
@@ -46,7 +48,7 @@ class Settings(ServiceSettings, ExtractorParams):
         "a colour model from shepherd marker learn; replaces colour"))
     intrinsics: RelPath | None = Field(default=None, description=(
         "TOML file for the shape test; else taken from camera/intrinsics when served (asked "
-        "every 2 s until answered, and followed)"))
+        f"every {ASK_EVERY_S:g} s until answered, and followed)"))
 
     @model_validator(mode="after")
     def _load_colour(self) -> Settings:
@@ -99,9 +101,6 @@ class IntrinsicsFollower:
             self._told_size = (width, height)
             self.log.warning("frames are %dx%d but the intrinsics are for %dx%d: shape test "
                              "without intrinsics", width, height, camera.width, camera.height)
-
-
-ASK_EVERY_S = 2.0  # camera/intrinsics asked this often until answered (s)
 
 
 async def _ask_intrinsics(ctx: ServiceContext, follower: IntrinsicsFollower) -> None:
