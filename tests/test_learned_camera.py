@@ -95,7 +95,7 @@ def test_the_learner_offers_a_camera_once_its_halves_agree_from_distinct_confide
         learner.add(v, c)
     assert learner.camera() is None  # (one view short of the first solve)
     learner.add(views[last], covs[last])
-    for _ in range(10):
+    for _ in range(100):  # (a solve takes about 20 new views' steps)
         learner.add(views[last], covs[last])  # (not a new view: kept once, pays no step)
     assert learner.camera() is None
     frames = 0  # (the solve due is worked on a few steps a new view)

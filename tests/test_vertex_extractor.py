@@ -186,6 +186,19 @@ def test_a_bowed_edges_bias_at_the_vertex_is_in_its_covariance():
             assert sigma.min() > 0.4 and sigma_max < 0.3  # (reported; not refused for it)
 
 
+def test_a_bows_variance_is_its_square_less_its_noise_variance():
+    """The bias added at a vertex is the fitted departure squared less its noise variance
+    once (the unbiased estimate of the bias's square; ``lines.BOW_SIGMAS`` = 1): a departure
+    of 0.5 px with a noise variance of 0.05 px² (sigma 0.1 px, ``COV_SCALE`` 5) adds 0.2 px²;
+    one within its noise adds nothing."""
+    from services.vertex_extractor.lines import _bow_variance
+    row = np.zeros(20)
+    row[3], row[11], row[14] = 0.1, 0.5, 1.0  # (sigma; departure and g' inv g at s = 0)
+    assert _bow_variance(row, 0.0, 5.0) == pytest.approx(0.25 - 0.05)
+    row[11] = 0.2
+    assert _bow_variance(row, 0.0, 5.0) == 0.0
+
+
 def test_optimal_split_finds_the_kink():
     x = np.arange(40, dtype=float)
     y = np.where(x < 17, 100 - 1.3 * x, 100 - 1.3 * 17 + 1.3 * (x - 17))
