@@ -8,7 +8,7 @@ import pytest
 from scipy.optimize import least_squares
 from scipy.special import ndtr
 
-from services.vertex_extractor import measure, shadow
+from services.vertex_extractor import measure, profile, shadow
 from services.vertex_extractor.extractor import ExtractorParams, RhombusExtractor
 from tests.test_hard_conditions import _assert_within, _kept_frame
 
@@ -159,6 +159,7 @@ def test_a_found_marker_the_scans_are_unsure_of_under_a_shadow_is_checked_by_the
     image, truth = _kept_frame(name)
     with monkeypatch.context() as m:
         m.setattr(shadow, "CHECK_SIGMA_PX", 99.0)
+        m.setattr(shadow, "CHECK_BEYOND_SHARE", 1.1)  # (the other trigger, below)
         unchecked = RhombusExtractor().extract(image)
     assert unchecked.found and np.linalg.norm(unchecked.vertices_px - truth, axis=1).max() > \
         off_px
@@ -170,10 +171,12 @@ def test_a_found_marker_the_scans_are_unsure_of_under_a_shadow_is_checked_by_the
 
 
 def test_a_found_marker_the_scans_are_sure_of_is_not_checked(monkeypatch: pytest.MonkeyPatch):
-    """The check costs a fit only where a vertex's reported sigma is over ``CHECK_SIGMA_PX``:
-    a shadowed marker the scans find sure of every vertex is never fitted."""
+    """The check costs a fit only where a vertex's reported sigma is over ``CHECK_SIGMA_PX``
+    (or the marker's colour lies beyond an edge, below): a shadowed marker the scans find
+    sure of every vertex is never fitted."""
     image, _ = _kept_frame("shadow_hard_209")
     monkeypatch.setattr(shadow, "CHECK_SIGMA_PX", 2.6)  # (over the scans' 2.05 px)
+    monkeypatch.setattr(shadow, "CHECK_BEYOND_SHARE", 1.1)
     monkeypatch.setattr(shadow, "fit", lambda *_a, **_k: pytest.fail("fitted"))
     assert RhombusExtractor().extract(image).found
 
@@ -187,8 +190,35 @@ def test_a_tracked_marker_the_check_refuses_is_not_fitted_whole_either(
     ex = RhombusExtractor()
     with monkeypatch.context() as m:
         m.setattr(shadow, "CHECK_SIGMA_PX", 99.0)
+        m.setattr(shadow, "CHECK_BEYOND_SHARE", 1.1)
         assert ex.extract(image).found
     det = ex.extract(image)
     assert not det.found and det.reason.startswith("the scans put the right vertex "), \
         det.reason
     assert "; fitted whole" not in det.reason
+
+
+def test_a_found_marker_with_its_colour_beyond_an_edge_is_checked_by_the_fit(
+        monkeypatch: pytest.MonkeyPatch):
+    """A kept webcam frame (hard shadow) whose shadow's boundary runs along the upper left
+    edge 1-5 px inside the marker: the scans take the boundary for the edge and *find* the
+    marker with the left vertex 6.0 px off, reporting 1.16 px (under ``CHECK_SIGMA_PX``).
+    The strip of shaded ink beyond that edge passes the colour test
+    (``profile.marker_beyond`` over ``CHECK_BEYOND_SHARE``; 0 beyond the true edges), so the
+    whole-marker fit checks it: taken, it puts the vertex 5.9 px away, and the marker is
+    refused, saying so."""
+    image, truth = _kept_frame("shadow_hard_104_74")
+    c = RhombusExtractor().params.colour
+    assert profile.marker_beyond(image, truth, c.lut, c.vector) == 0.0
+    with monkeypatch.context() as m:
+        m.setattr(shadow, "CHECK_BEYOND_SHARE", 1.1)
+        unchecked = RhombusExtractor().extract(image)
+    assert unchecked.found and unchecked.vertices_px is not None
+    assert unchecked.vertices_cov_px2 is not None
+    assert np.linalg.norm(unchecked.vertices_px - truth, axis=1).max() > 5.0
+    assert np.sqrt(np.linalg.eigvalsh(unchecked.vertices_cov_px2).max()) < shadow.CHECK_SIGMA_PX
+    assert profile.marker_beyond(image, unchecked.vertices_px, c.lut, c.vector) > \
+        shadow.CHECK_BEYOND_SHARE
+    det = RhombusExtractor().extract(image)
+    assert not det.found and det.reason.startswith("the scans put the left vertex ") and \
+        "from where the marker fitted whole under a cast shadow does" in det.reason, det.reason

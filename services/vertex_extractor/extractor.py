@@ -109,10 +109,13 @@ Where we depart from the paper, keeping its spirit:
   vertices are reported instead, or the marker is refused where the fit is unsure of any
   vertex (``_checked_under_highlight``; 21 ms at the median).
 - A marker the scans found (cold or tracked) but report unsure of, a vertex's sigma over
-  ``shadow.CHECK_SIGMA_PX``, is checked by the whole-marker shadow fit started from its
-  vertices: refused where that fit is taken and puts a vertex over ``shadow.CHECK_APART_PX``
-  away (a shadow's boundary moved the scans' edges), and then not fitted whole again
-  (``_checked_under_shadow``; a fit where a shadow crosses the marker, 20 ms at the median).
+  ``shadow.CHECK_SIGMA_PX``, or with the marker's colour just beyond an edge (over
+  ``shadow.CHECK_BEYOND_SHARE`` of the pixels ``profile.marker_beyond`` reads: a shadow's
+  boundary inside the marker taken for that edge), is checked by the whole-marker shadow fit
+  started from its vertices: refused where that fit is taken and puts a vertex over
+  ``shadow.CHECK_APART_PX`` away (a shadow's boundary moved the scans' edges), and then not
+  fitted whole again (``_checked_under_shadow``; a fit where a shadow crosses the marker, 20
+  ms at the median).
 - The covariance reported (``covariance.py``) is that one scaled with the marker's size (the
   errors that matter do not average out along an edge) plus what the profile says about a
   misplaced edge: honest (NEES about 2) on small and large markers, under blur and shadows.
@@ -304,8 +307,9 @@ class ExtractorParams(BaseModel):
         "last, on a cold search: a marker every other route refused is fitted whole as the "
         "rhombus under a cast shadow's straight boundary, taken only where the fit and its "
         "surround show that shadow; and a marker the scans found but are unsure of (a vertex "
-        "over 1.2 px, 1 sigma) is checked by that fit, and refused where it puts a vertex over "
-        "2 px away (shadow.py; 20 ms a view at the median, paid only on such views)"))
+        "over 1.2 px, 1 sigma) or with its colour just beyond an edge is checked by that fit, "
+        "and refused where it puts a vertex over 2 px away (shadow.py; 20 ms a view at the "
+        "median, paid only on such views)"))
     highlight_model: bool = Field(default=True, description=(
         "last, on a cold search: a marker every other route refused, with clipped white "
         "on its blob, is fitted whole with the pixels near the clipped ones left out, taken "
@@ -803,7 +807,9 @@ class RhombusExtractor:
 
     def _checked_under_shadow(self, image: np.ndarray, det: Detection) -> Detection:
         """A marker the scans found but are unsure of (a vertex's reported sigma over
-        ``shadow.CHECK_SIGMA_PX``), checked by the fit of the whole marker under a cast
+        ``shadow.CHECK_SIGMA_PX``), or with the marker's colour just beyond an edge (over
+        ``shadow.CHECK_BEYOND_SHARE``, ``profile.marker_beyond``: a shadow's boundary inside
+        the marker taken for that edge), checked by the fit of the whole marker under a cast
         shadow started from its vertices: where that fit is taken and puts a vertex more than
         ``shadow.CHECK_APART_PX`` from theirs, refused (a shadow's boundary moved the scans'
         edges). Not fitted whole again: the fit's own vertices were the wrong ones where the
@@ -811,12 +817,15 @@ class RhombusExtractor:
         v, cov = det.vertices_px, det.vertices_cov_px2
         if not (det.found and self.params.shadow_model and v is not None and cov is not None):
             return det
-        limit = shadow.CHECK_SIGMA_PX
-        if float((cov[:, 0, 0] + cov[:, 1, 1]).max()) <= limit * limit:
-            return det  # (the trace bounds the larger eigenvalue: 2 µs, not eigvalsh's 22)
-        if (sigma := recover.largest_sigma_px(cov)) <= limit:
+        limit, c = shadow.CHECK_SIGMA_PX, self.params.colour
+        # (the trace bounds the larger eigenvalue: 2 µs, not eigvalsh's 22)
+        sure = float((cov[:, 0, 0] + cov[:, 1, 1]).max()) <= limit * limit or \
+            recover.largest_sigma_px(cov) <= limit
+        if sure and profile.marker_beyond(image, v, c.lut, c.vector) \
+                <= shadow.CHECK_BEYOND_SHARE:
             return det
-        fit = shadow.fit(image, v, self.params.colour.lut)
+        sigma = recover.largest_sigma_px(cov)
+        fit = shadow.fit(image, v, c.lut)
         if isinstance(fit, str):
             return det
         apart = np.linalg.norm(fit.vertices_px - v, axis=1)

@@ -67,6 +67,10 @@ MAX_EVALUATIONS = 40     # the fit's budget (every fit taken converged within 26
 CHECK_SIGMA_PX = 1.2     # a found marker with a vertex this unsure (1 sigma, px) is checked
                          # (the extractor's max_vertex_sigma_px default; set apart from it)
 CHECK_APART_PX = 2.0     # ... and refused where the fit puts a vertex further than this (px)
+#: a found marker is checked too where over this share of the pixels just beyond an edge
+#: pass the colour test (``profile.marker_beyond``: shaded ink beyond a shadow's boundary
+#: taken for the edge; clean views' edges 0.5 at most)
+CHECK_BEYOND_SHARE = 0.2
 #: before fitting, the surround must darken across the interior's split line too: its
 #: brightness ratio, read at these softnesses (px: ± 3.2 and ± 8 px off the line), at most
 #: this in one of them (no taken fit was above 0.85; three in four fits not taken skipped)
