@@ -824,7 +824,6 @@ class RhombusExtractor:
         if sure and profile.marker_beyond(image, v, c.lut, c.vector) \
                 <= shadow.CHECK_BEYOND_SHARE:
             return det
-        sigma = recover.largest_sigma_px(cov)
         fit = shadow.fit(image, v, c.lut)
         if isinstance(fit, str):
             return det
@@ -835,7 +834,7 @@ class RhombusExtractor:
         return _miss(
             f"the scans put the {profile.VERTEX_NAMES[k]} vertex {apart[k]:.1f}"
             " px from where the marker fitted whole under a cast shadow does, their uncertainty "
-            f"{sigma:.2f}"
+            f"{recover.largest_sigma_px(cov):.2f}"
             " px (1 sigma): a shadow's boundary across the marker", det.tracked)
 
     def _checked_under_highlight(self, image: np.ndarray, det: Detection, prm: np.ndarray,
