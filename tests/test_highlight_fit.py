@@ -120,28 +120,71 @@ def test_without_clipped_pixels_the_fit_is_not_tried():
     assert _fit(image, (5, 5)) in highlight.UNTRIED  # (no marker near the seed either)
 
 
+def test_a_glow_short_of_clipping_is_fitted_as_a_last_resort_not_as_a_check(
+        monkeypatch: pytest.MonkeyPatch):
+    """A glossy print's glow over the bottom vertex that clips no pixel white (its brightest
+    pixel's darkest channel 239 of 255): the marker's chroma score is what added white
+    leaves, so the fit from the blob takes it (every vertex within 0.1 px and 3 reported
+    sigmas); at the clipped level alone (``GLOW_LEVEL`` = ``CLIPPED_LEVEL``) it was not
+    tried. A check of a found marker still wants clipped white."""
+    image = _glossy((80.0, 131.0), 0.7, 14.0)
+    assert highlight.GLOW_LEVEL <= int(image.min(axis=2).max()) < highlight.CLIPPED_LEVEL
+    fit = _fit(image, (80, 70))
+    assert isinstance(fit, highlight.HighlightFit), fit
+    error = np.linalg.norm(fit.vertices_px - RHOMBUS, axis=1)
+    sigma = np.sqrt(fit.cov_px2[:, 0, 0])
+    assert error.max() < 0.1 and np.all(error < 3 * sigma), (error, sigma)
+    c = ExtractorParams().colour
+    assert highlight.fit(image, (80, 70), c.lut, c.vector, c.green_bound,
+                         start_px=RHOMBUS) == highlight.NO_HIGHLIGHT
+    monkeypatch.setattr(highlight, "GLOW_LEVEL", highlight.CLIPPED_LEVEL)
+    assert _fit(image, (80, 70)) == highlight.NO_HIGHLIGHT
+
+
+def test_a_blob_cut_by_the_fits_window_is_looked_for_again_around_it(
+        monkeypatch: pytest.MonkeyPatch):
+    """A kept webcam frame (seed 7, view 117): a 240 px tall marker under a highlight,
+    fitted from a seed near its top vertex, reaches past the 321 px window around the seed.
+    Looked for again in the window centred on the blob, it is found as the whole frame's
+    fit finds it (within 0.5 px and 3 sigmas); with one try it is refused with why, not
+    fitted to the part inside (on the whole frame a vertex was 5.7 px off)."""
+    image, truth = _kept_frame("highlight_cut_window_117")
+    c = ExtractorParams().colour
+    seed = (145, 58)
+    assert truth[:, 1].max() - seed[1] > highlight.WINDOW_PX  # (the window cuts it)
+    fit = highlight.fit(image, seed, c.lut, c.vector, c.green_bound)
+    assert isinstance(fit, highlight.HighlightFit), fit
+    error = np.linalg.norm(fit.vertices_px - truth, axis=1)
+    sigma = np.sqrt(np.linalg.eigvalsh(fit.cov_px2).max(axis=1))
+    assert error.max() < 0.5 and np.all(error < 3 * sigma), (error, sigma)
+    monkeypatch.setattr(highlight, "WINDOW_TRIES", 1)
+    why = highlight.fit(image, seed, c.lut, c.vector, c.green_bound)
+    assert isinstance(why, str) and "reaches past the fit's window" in why, why
+
+
 def test_vertices_are_ordered_left_top_right_bottom():
     for turn in range(4):
         shuffled = np.roll(RHOMBUS[::-1], turn, axis=0)
         assert np.array_equal(shuffled[highlight.clockwise_from_left(shuffled)], RHOMBUS)
 
 
-@pytest.mark.parametrize("name, refusal", [
-    ("highlight_20", "too few edge points on one side"),
-    ("highlight_77", "vertex uncertainty too large"),
-    ("highlight_156", "too few measurable edge points"),  # (a vertex and most of two edges)
+@pytest.mark.parametrize("name, refusal, limit_px", [
+    ("highlight_20", "too few edge points on one side", 0.4),
+    ("highlight_77", "vertex uncertainty too large", 0.4),
+    ("highlight_156", "too few measurable edge points", 0.4),  # (a vertex, most of two edges)
+    ("highlight_glow_217", "vertex uncertainty too large", 0.6),  # (a glow clipping no white)
 ])
 def test_a_highlight_the_scans_refuse_is_fitted_whole_within_its_uncertainty(
-        name: str, refusal: str):
+        name: str, refusal: str, limit_px: float):
     """Kept webcam frames (tests/data/hard_frames): every scan refuses the marker under a
     glossy print's highlight; fitted whole, the clipped pixels left out, it is found within
-    0.4 px and three reported sigmas."""
+    ``limit_px`` and three reported sigmas."""
     image, truth = _kept_frame(name)
     refused = RhombusExtractor(ExtractorParams(highlight_model=False)).extract(image)
     assert not refused.found and refusal in refused.reason, refused.reason
     det = RhombusExtractor().extract(image)
     assert det.edge_points is None  # (the whole-marker fit's, not a scan's)
-    _assert_within(det, truth, 0.4)
+    _assert_within(det, truth, limit_px)
 
 
 def test_without_intrinsics_a_hidden_edge_is_given_by_the_rhombus_under_assumed_cameras():

@@ -15,8 +15,18 @@ is not checked, below), is fitted as the unshadowed model of ``shadow.py``:
 marker-coloured pixels, the pieces a highlight splits it into joined across clipped ones
 within ``JOIN_PX``, and those clipped pixels), cut down to its four extreme points (the
 hull's diameter and the points farthest from it on each side). It is tried only where
-clipped white (every channel clipped) lies on the blob or within ``WHITE_NEAR_PX`` of it:
-a highlight's core, not an over-exposed ink.
+white lies on the blob or within ``WHITE_NEAR_PX`` of it: a highlight's core, not an
+over-exposed ink. As the last resort for a marker every scan refused, white is every channel
+at ``GLOW_LEVEL`` or more (a glow that clips the ink's red but leaves the wall beside it
+unclipped is a highlight too), and the blob's pieces are joined across the highlight's halo
+(``halo_mask``: the marker's colour plus white light, which fails the colour test; a
+washed-out ring wider than ``JOIN_PX`` kept a clipped core from the blob) as well as across
+clipped pixels; the fit's marker pixels are the colour test's as before. A blob that
+reaches the side of the ``WINDOW_PX`` window around the seed inside the image is looked for
+again in a window centred on it and wide enough (``WINDOW_TRIES``), and refused where it
+still reaches it: fitted to the part inside, a marker taller than the window came out with
+a vertex 5.7 px off. As a check of a found marker, clipped white (``CLIPPED_LEVEL``) it is,
+without the halo.
 
 A free fit is taken only if every edge is seen over at least ``MIN_SUPPORT`` of its length
 (an edge under the highlight from end to end is not measured), every edge's band fits within
@@ -47,7 +57,7 @@ covariance the larger plus their distance from the mean squared, within
 ``MAX_POSE_SIGMA_PX``, another pose within ``POSE_TIE_ASSUMED`` of the best refusing (the
 assumed camera's error moves the poses' costs). The two cameras: once the extractor has
 learned the camera from the marker (``learned_camera.py``), its focal length ± 3 % and its
-principal point (found on 95-96 % of the highlight's views, at most 0.3 % wrong); before
+principal point (found on 96-97 % of the highlight's views, at most 0.3 % wrong); before
 that, the focal lengths ``ASSUMED_FOCAL_W`` (times the frame's width) with the principal
 point at the frame's centre (the frame must be the camera's whole image, not a crop): 90-93 %
 instead of 85-88 %, at most 0.3 % wrong. Under these, a pose must see three edges over
@@ -82,13 +92,28 @@ import numpy as np
 from services.core.camera import CameraModel, undistort_px
 from services.pose_estimator.p4p import OK, ippe4
 from services.vertex_extractor import recover, shadow
-from services.vertex_extractor.colour import chroma_direction, grid_mask
+from services.vertex_extractor.colour import (
+    G0,
+    HALO_CLIPPED,
+    HALO_MIN_CHROMA,
+    HALO_MIN_CHROMA_CLIPPED,
+    HALO_MIN_WHITE,
+    MIN_SUM,
+    QA,
+    QB,
+    QC,
+    R0,
+    chroma_direction,
+    grid_mask,
+)
 from services.vertex_extractor.profile import EDGE_NAMES
 
 CLIPPED_LEVEL = shadow.CLIPPED_LEVEL  # a pixel with a channel at or above this has clipped
 WINDOW_PX = 160          # the blob is looked for within this of the seed (px)
+WINDOW_TRIES = 3         # ... and again, wider, centred on it where it reaches its side
 JOIN_PX = 22             # the blob's pieces joined across clipped pixels this near (px)
 WHITE_NEAR_PX = 20       # clipped white this near the blob (px) makes it a highlight's
+GLOW_LEVEL = 230         # ... as a last resort, white (every channel) at least this (sRGB)
 MASK_PX = 2              # pixels this near a clipped one are left out of the fit (px)
 MARGIN_PX = 14           # the fitted box: the start's plus this (px)
 MIN_MARKER_PX = 20       # the blob's unclipped marker pixels, at least
@@ -169,13 +194,33 @@ def _disc(radius: int) -> np.ndarray:
     return cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * radius + 1, 2 * radius + 1))
 
 
+def halo_mask(crop: np.ndarray, marker: np.ndarray, lut: np.ndarray, vector: np.ndarray
+              ) -> np.ndarray:
+    """The pixels of a BGR crop that are the marker's colour plus white light (bool mask): as
+    ``colour.is_lit_marker`` tests them, with the median chroma of the ``marker`` pixels
+    (bool mask) for the seed's. A highlight's washed-out halo, which fails the colour test
+    but keeps the marker's chroma score (the model's)."""
+    lin = lut[crop]
+    lo, hi = lin.min(axis=2), lin.max(axis=2)
+    chroma = lin.sum(axis=2) - 3.0 * lo
+    seed_chroma = float(np.median(chroma[marker]))
+    least = np.where(hi >= HALO_CLIPPED, HALO_MIN_CHROMA_CLIPPED * seed_chroma,
+                     HALO_MIN_CHROMA * seed_chroma)
+    bgr = lin - lo[..., None]
+    s = np.maximum(bgr.sum(axis=2), 1e-9)
+    dr, dg = bgr[..., 2] - vector[R0] * s, bgr[..., 1] - vector[G0] * s
+    inside = vector[QA] * dr * dr + 2.0 * vector[QB] * dr * dg + vector[QC] * dg * dg <= s * s
+    return (lo >= HALO_MIN_WHITE * hi) & (chroma >= least) & inside & (s >= vector[MIN_SUM])
+
+
 def _blob(crop: np.ndarray, white: np.ndarray, seed: tuple[int, int], lut: np.ndarray,
-          vector: np.ndarray, green_bound: np.ndarray
+          vector: np.ndarray, green_bound: np.ndarray, halo: bool = False
           ) -> tuple[np.ndarray, np.ndarray, np.ndarray] | str:
-    """In a BGR crop with its clipped white (every channel clipped: bool mask), the seed's
-    blob's marker-coloured pixels (its pieces joined across clipped ones), the crop's
-    clipped pixels (some channel clipped) and the blob's (bool masks); or why not: clipped
-    white must lie on the blob or within ``WHITE_NEAR_PX`` of it."""
+    """In a BGR crop with its white (every channel at least the trigger's level: bool
+    mask), the seed's blob's marker-coloured pixels (its pieces joined across clipped ones;
+    where ``halo``, with the highlight's halo, ``halo_mask``), the crop's clipped pixels (some
+    channel clipped) and the blob's (bool masks); or why not: white must lie on the blob or
+    within ``WHITE_NEAR_PX`` of it."""
     b, g, r = cv2.split(crop)
     clipped = cv2.max(cv2.max(b, g), r) >= CLIPPED_LEVEL
     marker = grid_mask(crop, 1, 0, lut, vector, green_bound)[0] > 0
@@ -183,12 +228,54 @@ def _blob(crop: np.ndarray, white: np.ndarray, seed: tuple[int, int], lut: np.nd
     if xs.size == 0:
         return NO_BLOB
     near = cv2.dilate(clipped.astype(np.uint8), _disc(JOIN_PX))
+    if halo:  # (the pieces joined across the halo too; the fit's marker pixels as before)
+        near |= halo_mask(crop, marker, lut, vector).astype(np.uint8)
     _, labels = cv2.connectedComponents(marker.astype(np.uint8) | near, connectivity=8)
     j = int(np.argmin((xs - seed[0]) ** 2 + (ys - seed[1]) ** 2))
     blob = labels == labels[ys[j], xs[j]]
     if not (cv2.dilate(blob.astype(np.uint8), _disc(WHITE_NEAR_PX)) & white).any():
         return NO_HIGHLIGHT  # (no white core on it or beside it: an over-exposed ink)
     return blob & marker, clipped, blob & clipped
+
+
+def _window(image: np.ndarray, seed: tuple[int, int], level: int, whole: bool,
+            lut: np.ndarray, vector: np.ndarray, green_bound: np.ndarray
+            ) -> tuple[np.ndarray, tuple[int, int], tuple[np.ndarray, np.ndarray, np.ndarray]
+                       ] | str:
+    """The crop of ``image`` within ``WINDOW_PX`` of ``seed`` (x, y px), its corner (x, y
+    px) and ``_blob``'s masks in it (white: every channel at ``level`` or more); or why not.
+    Where ``whole`` (a fit from the blob, not a check: the halo joins the blob's pieces), a
+    blob that reaches the crop's side inside the image is looked for again in a crop
+    centred on it and ``2 MARGIN_PX`` wider than it (``WINDOW_TRIES`` in all), and refused
+    where it still does: a marker cut by the window is fitted to a part of it (seed 7, view
+    117: a vertex 5.7 px off)."""
+    H, W = image.shape[:2]
+    half = (WINDOW_PX, WINDOW_PX)  # (x, y px)
+    for _ in range(WINDOW_TRIES if whole else 1):
+        cx0, cy0 = max(seed[0] - half[0], 0), max(seed[1] - half[1], 0)
+        cx1, cy1 = min(seed[0] + half[0] + 1, W), min(seed[1] + half[1] + 1, H)
+        if cx1 <= cx0 or cy1 <= cy0:
+            return NO_BLOB
+        crop = np.ascontiguousarray(image[cy0:cy1, cx0:cx1])
+        white = cv2.inRange(crop, (level,) * 3, (255, 255, 255))
+        if not cv2.countNonZero(white):
+            return NO_HIGHLIGHT  # (the common case, first and cheaply: no white near)
+        found = _blob(crop, white, (seed[0] - cx0, seed[1] - cy0), lut, vector, green_bound,
+                      halo=whole)
+        if isinstance(found, str) or not whole:
+            return found if isinstance(found, str) else (crop, (cx0, cy0), found)
+        ys, xs = np.nonzero(found[0] | found[2])
+        bx0, bx1, by0, by1 = int(xs.min()), int(xs.max()), int(ys.min()), int(ys.max())
+        cut = (bx0 == 0 < cx0) or (by0 == 0 < cy0) or (bx1 == crop.shape[1] - 1 and cx1 < W) \
+            or (by1 == crop.shape[0] - 1 and cy1 < H)
+        if not cut:
+            return crop, (cx0, cy0), found
+        # (again around the blob's pixel nearest its box's centre, the window as wide)
+        k = int(np.argmin((xs - (bx0 + bx1) / 2) ** 2 + (ys - (by0 + by1) / 2) ** 2))
+        seed = (int(xs[k]) + cx0, int(ys[k]) + cy0)
+        half = (max(half[0], bx1 - bx0 + 2 * MARGIN_PX), max(half[1], by1 - by0 + 2 * MARGIN_PX))
+    return f"the marker's blob reaches past the fit's window ({2 * half[0] + 1} x " \
+        f"{2 * half[1] + 1} px)"
 
 
 def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.ndarray,
@@ -208,17 +295,12 @@ def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.nd
     ``MAX_SIGMA_PX`` and no pose fit; a box over ``shadow.MAX_BOX_PX`` is not checked);
     else the blob's hull."""
     H, W = image.shape[:2]
-    cx0, cy0 = max(seed[0] - WINDOW_PX, 0), max(seed[1] - WINDOW_PX, 0)
-    cx1, cy1 = min(seed[0] + WINDOW_PX + 1, W), min(seed[1] + WINDOW_PX + 1, H)
-    if cx1 <= cx0 or cy1 <= cy0:
-        return NO_BLOB
-    crop = np.ascontiguousarray(image[cy0:cy1, cx0:cx1])
-    white = cv2.inRange(crop, (CLIPPED_LEVEL,) * 3, (255, 255, 255))
-    if not cv2.countNonZero(white):
-        return NO_HIGHLIGHT  # (the common case, first and cheaply: no clipped white near)
-    found = _blob(crop, white, (seed[0] - cx0, seed[1] - cy0), lut, vector, green_bound)
-    if isinstance(found, str):
-        return found
+    # (a last resort: a glossy print's glow short of clipping, the marker with its halo)
+    level = CLIPPED_LEVEL if start_px is not None else GLOW_LEVEL
+    windowed = _window(image, seed, level, start_px is None, lut, vector, green_bound)
+    if isinstance(windowed, str):
+        return windowed
+    crop, (cx0, cy0), found = windowed
     marker, clipped, core = found
     if start_px is None:
         ys, xs = np.nonzero(marker | core)  # (a core over a vertex: the hull reaches it)
