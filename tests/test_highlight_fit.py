@@ -141,13 +141,35 @@ def test_a_glow_short_of_clipping_is_fitted_as_a_last_resort_not_as_a_check(
     assert _fit(image, (80, 70)) == highlight.NO_HIGHLIGHT
 
 
+def test_the_halo_joins_a_clipped_core_to_the_ink_it_washes_out(
+        monkeypatch: pytest.MonkeyPatch):
+    """A clipped core over the top vertex, the ink around it washed out to a halo that fails
+    the colour test. With the joins across clipped pixels and the reach to white shrunk to
+    1 px (as a halo wider than ``JOIN_PX`` leaves them), the halo (``halo_mask``) still joins
+    the core to the blob: fitted, every vertex within 0.1 px and 3 sigmas. Without it (the
+    check's blob) no white is on the blob."""
+    monkeypatch.setattr(highlight, "JOIN_PX", 1)
+    monkeypatch.setattr(highlight, "WHITE_NEAR_PX", 1)
+    image = _glossy((80.0, 40.0), 6.0, 20.0)
+    c = ExtractorParams().colour
+    white = cv2.inRange(image, (highlight.CLIPPED_LEVEL,) * 3, (255, 255, 255))
+    assert highlight._blob(image, white, (80, 120), c.lut, c.vector, c.green_bound) \
+        == highlight.NO_HIGHLIGHT
+    fit = _fit(image, (80, 120))
+    assert isinstance(fit, highlight.HighlightFit), fit
+    error = np.linalg.norm(fit.vertices_px - RHOMBUS, axis=1)
+    sigma = np.sqrt(fit.cov_px2[:, 0, 0])
+    assert error.max() < 0.1 and np.all(error < 3 * sigma), (error, sigma)
+
+
 def test_a_blob_cut_by_the_fits_window_is_looked_for_again_around_it(
         monkeypatch: pytest.MonkeyPatch):
     """A kept webcam frame (seed 7, view 117): a 240 px tall marker under a highlight,
     fitted from a seed near its top vertex, reaches past the 321 px window around the seed.
-    Looked for again in the window centred on the blob, it is found as the whole frame's
-    fit finds it (within 0.5 px and 3 sigmas); with one try it is refused with why, not
-    fitted to the part inside (on the whole frame a vertex was 5.7 px off)."""
+    Looked for again in a window grown past it, it is found as the whole frame's fit finds
+    it (within 0.5 px and 3 sigmas); where that window would be over ``MAX_WINDOW_PX``, it
+    is refused with why, not fitted to the part inside (on the whole frame a vertex was
+    5.7 px off)."""
     image, truth = _kept_frame("highlight_cut_window_117")
     c = ExtractorParams().colour
     seed = (145, 58)
@@ -157,7 +179,7 @@ def test_a_blob_cut_by_the_fits_window_is_looked_for_again_around_it(
     error = np.linalg.norm(fit.vertices_px - truth, axis=1)
     sigma = np.sqrt(np.linalg.eigvalsh(fit.cov_px2).max(axis=1))
     assert error.max() < 0.5 and np.all(error < 3 * sigma), (error, sigma)
-    monkeypatch.setattr(highlight, "WINDOW_TRIES", 1)
+    monkeypatch.setattr(highlight, "MAX_WINDOW_PX", 250)  # (less than the marker grown)
     why = highlight.fit(image, seed, c.lut, c.vector, c.green_bound)
     assert isinstance(why, str) and "reaches past the fit's window" in why, why
 

@@ -23,9 +23,9 @@ unclipped is a highlight too), and the blob's pieces are joined across the highl
 washed-out ring wider than ``JOIN_PX`` kept a clipped core from the blob) as well as across
 clipped pixels; the fit's marker pixels are the colour test's as before. A blob that
 reaches the side of the ``WINDOW_PX`` window around the seed inside the image is looked for
-again in a window centred on it and wide enough (``WINDOW_TRIES``), and refused where it
-still reaches it: fitted to the part inside, a marker taller than the window came out with
-a vertex 5.7 px off. As a check of a found marker, clipped white (``CLIPPED_LEVEL``) it is,
+again in a window grown past it on that side (up to ``MAX_WINDOW_PX`` a side), and refused
+where it would outgrow that: fitted to the part inside, a marker taller than the window came
+out with a vertex 5.7 px off. As a check of a found marker, clipped white (``CLIPPED_LEVEL``) it is,
 without the halo.
 
 A free fit is taken only if every edge is seen over at least ``MIN_SUPPORT`` of its length
@@ -110,7 +110,7 @@ from services.vertex_extractor.profile import EDGE_NAMES
 
 CLIPPED_LEVEL = shadow.CLIPPED_LEVEL  # a pixel with a channel at or above this has clipped
 WINDOW_PX = 160          # the blob is looked for within this of the seed (px)
-WINDOW_TRIES = 3         # ... and again, wider, centred on it where it reaches its side
+MAX_WINDOW_PX = 800      # ... and again, wider, where the blob reaches its side, up to this
 JOIN_PX = 22             # the blob's pieces joined across clipped pixels this near (px)
 WHITE_NEAR_PX = 20       # clipped white this near the blob (px) makes it a highlight's
 GLOW_LEVEL = 230         # ... as a last resort, white (every channel) at least this (sRGB)
@@ -147,7 +147,7 @@ MAX_EVALUATIONS = 80     # the fit's budget
 ASSUMED_FOCAL_W = (0.5, 1.4)
 
 #: not tried: the extractor's own refusal says enough
-NO_HIGHLIGHT = "no clipped white on the marker's blob"
+NO_HIGHLIGHT = "no clipped white (or glow) on the marker's blob"
 NO_BLOB = "no marker-coloured blob at the seed"
 UNTRIED = (NO_HIGHLIGHT, NO_BLOB)
 
@@ -198,9 +198,10 @@ def halo_mask(crop: np.ndarray, marker: np.ndarray, lut: np.ndarray, vector: np.
               ) -> np.ndarray:
     """The pixels of a BGR crop that are the marker's colour plus white light (bool mask): as
     ``colour.is_lit_marker`` tests them, with the median chroma of the ``marker`` pixels
-    (bool mask) for the seed's. A highlight's washed-out halo, which fails the colour test
-    but keeps the marker's chroma score (the model's)."""
-    lin = lut[crop]
+    (bool mask: the seed's piece of the blob) for the seed's. A highlight's washed-out halo,
+    which fails the colour test but keeps the marker's chroma score (the model's). In
+    float32 (a crop of up to ``MAX_WINDOW_PX`` a side)."""
+    lin = lut.astype(np.float32)[crop]
     lo, hi = lin.min(axis=2), lin.max(axis=2)
     chroma = lin.sum(axis=2) - 3.0 * lo
     seed_chroma = float(np.median(chroma[marker]))
@@ -208,9 +209,10 @@ def halo_mask(crop: np.ndarray, marker: np.ndarray, lut: np.ndarray, vector: np.
                      HALO_MIN_CHROMA * seed_chroma)
     bgr = lin - lo[..., None]
     s = np.maximum(bgr.sum(axis=2), 1e-9)
-    dr, dg = bgr[..., 2] - vector[R0] * s, bgr[..., 1] - vector[G0] * s
-    inside = vector[QA] * dr * dr + 2.0 * vector[QB] * dr * dg + vector[QC] * dg * dg <= s * s
-    return (lo >= HALO_MIN_WHITE * hi) & (chroma >= least) & inside & (s >= vector[MIN_SUM])
+    r0, g0, qa, qb, qc, min_sum = (float(vector[k]) for k in (R0, G0, QA, QB, QC, MIN_SUM))
+    dr, dg = bgr[..., 2] - r0 * s, bgr[..., 1] - g0 * s
+    inside = qa * dr * dr + 2.0 * qb * dr * dg + qc * dg * dg <= s * s
+    return (lo >= HALO_MIN_WHITE * hi) & (chroma >= least) & inside & (s >= min_sum)
 
 
 def _blob(crop: np.ndarray, white: np.ndarray, seed: tuple[int, int], lut: np.ndarray,
@@ -229,7 +231,9 @@ def _blob(crop: np.ndarray, white: np.ndarray, seed: tuple[int, int], lut: np.nd
         return NO_BLOB
     near = cv2.dilate(clipped.astype(np.uint8), _disc(JOIN_PX))
     if halo:  # (the pieces joined across the halo too; the fit's marker pixels as before)
-        near |= halo_mask(crop, marker, lut, vector).astype(np.uint8)
+        _, pieces = cv2.connectedComponents(marker.astype(np.uint8), connectivity=8)
+        j = int(np.argmin((xs - seed[0]) ** 2 + (ys - seed[1]) ** 2))
+        near |= halo_mask(crop, pieces == pieces[ys[j], xs[j]], lut, vector).astype(np.uint8)
     _, labels = cv2.connectedComponents(marker.astype(np.uint8) | near, connectivity=8)
     j = int(np.argmin((xs - seed[0]) ** 2 + (ys - seed[1]) ** 2))
     blob = labels == labels[ys[j], xs[j]]
@@ -246,36 +250,36 @@ def _window(image: np.ndarray, seed: tuple[int, int], level: int, whole: bool,
     px) and ``_blob``'s masks in it (white: every channel at ``level`` or more); or why not.
     Where ``whole`` (a fit from the blob, not a check: the halo joins the blob's pieces), a
     blob that reaches the crop's side inside the image is looked for again in a crop
-    centred on it and ``2 MARGIN_PX`` wider than it (``WINDOW_TRIES`` in all), and refused
-    where it still does: a marker cut by the window is fitted to a part of it (seed 7, view
-    117: a vertex 5.7 px off)."""
+    ``MARGIN_PX`` beyond it on its other sides and ``WINDOW_PX`` beyond it on the side it
+    reached, until it reaches none; refused where the crop would be over ``MAX_WINDOW_PX`` a
+    side: a marker cut by the window is fitted to a part of it (seed 7, view 117: a vertex
+    5.7 px off)."""
     H, W = image.shape[:2]
-    half = (WINDOW_PX, WINDOW_PX)  # (x, y px)
-    for _ in range(WINDOW_TRIES if whole else 1):
-        cx0, cy0 = max(seed[0] - half[0], 0), max(seed[1] - half[1], 0)
-        cx1, cy1 = min(seed[0] + half[0] + 1, W), min(seed[1] + half[1] + 1, H)
-        if cx1 <= cx0 or cy1 <= cy0:
+    x0, y0 = max(seed[0] - WINDOW_PX, 0), max(seed[1] - WINDOW_PX, 0)
+    x1, y1 = min(seed[0] + WINDOW_PX + 1, W), min(seed[1] + WINDOW_PX + 1, H)  # (exclusive)
+    while True:
+        if x1 <= x0 or y1 <= y0:
             return NO_BLOB
-        crop = np.ascontiguousarray(image[cy0:cy1, cx0:cx1])
+        crop = np.ascontiguousarray(image[y0:y1, x0:x1])
         white = cv2.inRange(crop, (level,) * 3, (255, 255, 255))
         if not cv2.countNonZero(white):
             return NO_HIGHLIGHT  # (the common case, first and cheaply: no white near)
-        found = _blob(crop, white, (seed[0] - cx0, seed[1] - cy0), lut, vector, green_bound,
+        found = _blob(crop, white, (seed[0] - x0, seed[1] - y0), lut, vector, green_bound,
                       halo=whole)
         if isinstance(found, str) or not whole:
-            return found if isinstance(found, str) else (crop, (cx0, cy0), found)
+            return found if isinstance(found, str) else (crop, (x0, y0), found)
         ys, xs = np.nonzero(found[0] | found[2])
-        bx0, bx1, by0, by1 = int(xs.min()), int(xs.max()), int(ys.min()), int(ys.max())
-        cut = (bx0 == 0 < cx0) or (by0 == 0 < cy0) or (bx1 == crop.shape[1] - 1 and cx1 < W) \
-            or (by1 == crop.shape[0] - 1 and cy1 < H)
-        if not cut:
-            return crop, (cx0, cy0), found
-        # (again around the blob's pixel nearest its box's centre, the window as wide)
-        k = int(np.argmin((xs - (bx0 + bx1) / 2) ** 2 + (ys - (by0 + by1) / 2) ** 2))
-        seed = (int(xs[k]) + cx0, int(ys[k]) + cy0)
-        half = (max(half[0], bx1 - bx0 + 2 * MARGIN_PX), max(half[1], by1 - by0 + 2 * MARGIN_PX))
-    return f"the marker's blob reaches past the fit's window ({2 * half[0] + 1} x " \
-        f"{2 * half[1] + 1} px)"
+        bx0, bx1 = int(xs.min()) + x0, int(xs.max()) + x0  # (the blob's box, image px)
+        by0, by1 = int(ys.min()) + y0, int(ys.max()) + y0
+        cut = (bx0 == x0 > 0, by0 == y0 > 0, bx1 == x1 - 1 < W - 1, by1 == y1 - 1 < H - 1)
+        if not any(cut):
+            return crop, (x0, y0), found
+        reach = [WINDOW_PX if c else MARGIN_PX for c in cut]
+        x0, y0 = max(bx0 - reach[0], 0), max(by0 - reach[1], 0)
+        x1, y1 = min(bx1 + reach[2] + 1, W), min(by1 + reach[3] + 1, H)
+        if max(x1 - x0, y1 - y0) > MAX_WINDOW_PX:
+            return (f"the marker's blob reaches past the fit's window ({crop.shape[1]} x "
+                    f"{crop.shape[0]} px; at most {MAX_WINDOW_PX} px a side)")
 
 
 def fit(image: np.ndarray, seed: tuple[int, int], lut: np.ndarray, vector: np.ndarray,
