@@ -107,9 +107,7 @@ class ColourModel(BaseModel):
 
     def mask(self, bgr: np.ndarray) -> np.ndarray:
         """The interior test on a whole image (bool H x W; for tools, not the hot path)."""
-        lin = self.lut[np.asarray(bgr, np.uint8)]
-        return (lin.sum(-1) >= self.vector[MIN_SUM]) & (self.chroma_distance(bgr)
-                                                        <= self.max_distance)
+        return inside_mask(self.lut[np.asarray(bgr, np.uint8)], self.vector)
 
 
 @njit(inline="always")
@@ -172,6 +170,31 @@ def is_lit_marker(img: np.ndarray, y: int, x: int, lut: np.ndarray, m: np.ndarra
     if b + g + r - 3.0 * lo < least:
         return False
     return _inside(b - lo, g - lo, r - lo, m)
+
+
+def inside_mask(lin: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """``_inside`` over an H x W x 3 array of linear B, G, R (x 255): bool H x W (numpy, in
+    the array's float type; for the fits outside the kernels)."""
+    r0, g0, qa, qb, qc, min_sum = (float(m[k]) for k in (R0, G0, QA, QB, QC, MIN_SUM))
+    s = lin.sum(axis=2)
+    dr, dg = lin[..., 2] - r0 * s, lin[..., 1] - g0 * s
+    return (s >= min_sum) & (s > 0.0) & (qa * dr * dr + 2.0 * qb * dr * dg + qc * dg * dg
+                                         <= s * s)
+
+
+def lit_marker_mask(lin: np.ndarray, m: np.ndarray, min_chroma: float,
+                    unclipped: bool = False) -> np.ndarray:
+    """``is_lit_marker`` over an H x W x 3 array of linear B, G, R (x 255): bool H x W
+    (numpy, in the array's float type; for the fits outside the kernels)."""
+    lo, hi = lin.min(axis=2), lin.max(axis=2)
+    clipped = hi >= HALO_CLIPPED
+    least = np.where(clipped, min_chroma * (HALO_MIN_CHROMA_CLIPPED / HALO_MIN_CHROMA),
+                     min_chroma)
+    lit = (lo >= HALO_MIN_WHITE * hi) & (lin.sum(axis=2) - 3.0 * lo >= least) & \
+        inside_mask(lin - lo[..., None], m)
+    if unclipped:
+        lit &= ~clipped
+    return inside_mask(lin, m) | lit
 
 
 @njit(inline="always")

@@ -93,18 +93,10 @@ from services.core.camera import CameraModel, undistort_px
 from services.pose_estimator.p4p import OK, ippe4
 from services.vertex_extractor import recover, shadow
 from services.vertex_extractor.colour import (
-    G0,
-    HALO_CLIPPED,
     HALO_MIN_CHROMA,
-    HALO_MIN_CHROMA_CLIPPED,
-    HALO_MIN_WHITE,
-    MIN_SUM,
-    QA,
-    QB,
-    QC,
-    R0,
     chroma_direction,
     grid_mask,
+    lit_marker_mask,
 )
 from services.vertex_extractor.profile import EDGE_NAMES
 
@@ -196,23 +188,15 @@ def _disc(radius: int) -> np.ndarray:
 
 def halo_mask(crop: np.ndarray, marker: np.ndarray, lut: np.ndarray, vector: np.ndarray
               ) -> np.ndarray:
-    """The pixels of a BGR crop that are the marker's colour plus white light (bool mask): as
-    ``colour.is_lit_marker`` tests them, with the median chroma of the ``marker`` pixels
-    (bool mask: the seed's piece of the blob) for the seed's. A highlight's washed-out halo,
-    which fails the colour test but keeps the marker's chroma score (the model's). In
-    float32 (a crop of up to ``MAX_WINDOW_PX`` a side)."""
+    """The pixels of a BGR crop that are the marker's colour, or it plus white light (bool
+    mask): ``colour.lit_marker_mask``, the least chroma that of the median of the ``marker``
+    pixels (bool mask: the seed's piece of the blob) for the seed's. A highlight's washed-out
+    halo fails the colour test but keeps the marker's chroma score (the model's). In float32
+    (a crop of up to ``MAX_WINDOW_PX`` a side)."""
     lin = lut.astype(np.float32)[crop]
-    lo, hi = lin.min(axis=2), lin.max(axis=2)
-    chroma = lin.sum(axis=2) - 3.0 * lo
-    seed_chroma = float(np.median(chroma[marker]))
-    least = np.where(hi >= HALO_CLIPPED, HALO_MIN_CHROMA_CLIPPED * seed_chroma,
-                     HALO_MIN_CHROMA * seed_chroma)
-    bgr = lin - lo[..., None]
-    s = np.maximum(bgr.sum(axis=2), 1e-9)
-    r0, g0, qa, qb, qc, min_sum = (float(vector[k]) for k in (R0, G0, QA, QB, QC, MIN_SUM))
-    dr, dg = bgr[..., 2] - r0 * s, bgr[..., 1] - g0 * s
-    inside = qa * dr * dr + 2.0 * qb * dr * dg + qc * dg * dg <= s * s
-    return (lo >= HALO_MIN_WHITE * hi) & (chroma >= least) & inside & (s >= min_sum)
+    seed = lin[marker]
+    seed_chroma = float(np.median(seed.sum(axis=1) - 3.0 * seed.min(axis=1)))
+    return lit_marker_mask(lin, vector, HALO_MIN_CHROMA * seed_chroma)
 
 
 def _blob(crop: np.ndarray, white: np.ndarray, seed: tuple[int, int], lut: np.ndarray,
@@ -230,12 +214,11 @@ def _blob(crop: np.ndarray, white: np.ndarray, seed: tuple[int, int], lut: np.nd
     if xs.size == 0:
         return NO_BLOB
     near = cv2.dilate(clipped.astype(np.uint8), _disc(JOIN_PX))
+    j = int(np.argmin((xs - seed[0]) ** 2 + (ys - seed[1]) ** 2))  # (the seed's nearest)
     if halo:  # (the pieces joined across the halo too; the fit's marker pixels as before)
         _, pieces = cv2.connectedComponents(marker.astype(np.uint8), connectivity=8)
-        j = int(np.argmin((xs - seed[0]) ** 2 + (ys - seed[1]) ** 2))
         near |= halo_mask(crop, pieces == pieces[ys[j], xs[j]], lut, vector).astype(np.uint8)
     _, labels = cv2.connectedComponents(marker.astype(np.uint8) | near, connectivity=8)
-    j = int(np.argmin((xs - seed[0]) ** 2 + (ys - seed[1]) ** 2))
     blob = labels == labels[ys[j], xs[j]]
     if not (cv2.dilate(blob.astype(np.uint8), _disc(WHITE_NEAR_PX)) & white).any():
         return NO_HIGHLIGHT  # (no white core on it or beside it: an over-exposed ink)
