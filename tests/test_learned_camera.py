@@ -155,6 +155,38 @@ def test_a_half_seen_face_on_agrees_with_nothing() -> None:
         learner.last
 
 
+def test_a_view_found_again_is_no_new_view_and_costs_no_look_through_the_views_kept(
+) -> None:
+    """A marker seen again where it was (tracked standing still, or found again after
+    others) is not kept again, and only its first sight looks through the views kept; a view
+    that moved ``NEW_VIEW_PX`` from every one kept is kept, however near the last one
+    seen it came by small steps."""
+    looks: list[int] = []
+
+    class Counting(CameraLearner):
+        def _nearest_kept(self, vertices_px: np.ndarray) -> tuple[int, float]:
+            looks.append(1)
+            return super()._nearest_kept(vertices_px)
+
+    views, covs = _views(16, 757.0, 390.0, 260.0, seed=14)
+    tall = np.linalg.norm(views[:, 3] - views[:, 1], axis=1) >= learned_camera.MIN_MARKER_PX
+    views, covs = views[tall][:12], covs[tall][:12]  # (no small marker: each one is kept)
+    learner = Counting(RHOMBUS_M, W, H)
+    for v, c in zip(views, covs, strict=True):
+        learner.add(v, c)
+    assert learner._kept == 12 and len(looks) == 11
+    looks.clear()
+    for v, c in zip(views, covs, strict=True):  # each seen again, 5 frames in a row
+        for k in range(5):
+            learner.add(v + 0.3 * k, c)
+    assert learner._kept == 12 and len(looks) == 12
+    step = learned_camera.NEW_VIEW_PX / 4  # (a slow drift: each step near the last)
+    for k in range(1, 8):  # (1.25 to 8.75 px from views[0])
+        learner.add(views[0] + [k * step, 0.0], covs[0])
+    assert learner._kept == 13  # (kept once 5 px from views[0], and only then)
+    assert np.allclose(learner._vertices[12], views[0] + [4 * step, 0.0])
+
+
 def test_small_markers_are_not_learned_from() -> None:
     """Views whose marker is under ``MIN_MARKER_PX`` tall (a 420 px camera, 0.7-0.8 m
     away: 35-40 px) are not kept: too little perspective to tell a focal length."""

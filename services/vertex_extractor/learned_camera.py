@@ -336,6 +336,10 @@ class CameraLearner:
         self._covs = np.empty((MAX_VIEWS, 4, 2, 2))
         self._kept = 0  # views kept, at most MAX_VIEWS
         self._next = 0  # the ring's slot for the next view
+        #: the ring's slot of the view kept that the last view offered was, or was near: a
+        #: view near it is no new view without a look through the views kept (a tracked
+        #: marker standing still, or one found again where it was)
+        self._seen: int | None = None
         self._new = 0
         self._every = SOLVE_EVERY
         self._failed = 0  # solves failed in a row
@@ -349,9 +353,11 @@ class CameraLearner:
         (every vertex's covariance positive definite, its trace at most ``MAX_SIGMA_PX``²)
         and a new view (a vertex's coordinate at least ``NEW_VIEW_PX`` from its place in every
         view kept); then a solve under way is worked on, or one begun when due (only a view
-        kept pays for the solve: a tracked marker standing still pays nothing)."""
-        last = self._vertices[self._next - 1]  # (a tracked marker: mostly where it was)
-        if self._kept and float(np.abs(last - vertices_px).max()) < NEW_VIEW_PX:
+        kept pays for the solve: a tracked marker standing still pays nothing, nor one found
+        again where it was last seen)."""
+        seen = self._seen  # (a tracked marker: mostly where it was)
+        if seen is not None and float(np.abs(self._vertices[seen] - vertices_px).max()
+                                      ) < NEW_VIEW_PX:
             return
         if float(np.hypot(*(vertices_px[3] - vertices_px[1]))) < MIN_MARKER_PX:
             return  # (a small marker: too little perspective to tell a focal length)
@@ -360,9 +366,12 @@ class CameraLearner:
                 not ((cov_px2[:, 0, 0] > 0.0) & (cov_px2[:, 0, 0] * cov_px2[:, 1, 1]
                                                > cov_px2[:, 0, 1] * cov_px2[:, 1, 0])).all():
             return  # (not numbers, too uncertain, or no covariance)
-        if self._kept and float(np.abs(self._vertices[:self._kept] - vertices_px).max(
-                axis=(1, 2)).min()) < NEW_VIEW_PX:
-            return
+        if self._kept:
+            nearest, apart_px = self._nearest_kept(vertices_px)
+            if apart_px < NEW_VIEW_PX:
+                self._seen = nearest
+                return
+        self._seen = self._next
         self._vertices[self._next] = vertices_px
         self._covs[self._next] = cov_px2
         self._next = (self._next + 1) % MAX_VIEWS
@@ -384,6 +393,13 @@ class CameraLearner:
             order = np.roll(np.arange(self._kept), -self._next if self._kept == MAX_VIEWS
                             else 0)  # (oldest first)
             self._work = self._solving(self._vertices[order], self._covs[order])
+
+    def _nearest_kept(self, vertices_px: np.ndarray) -> tuple[int, float]:
+        """The ring's slot of the view kept nearest the view ``vertices_px`` (4, 2) px, and how
+        far it is (px: the largest of their vertices' coordinates' differences)."""
+        apart = np.abs(self._vertices[:self._kept] - vertices_px).max(axis=(1, 2))
+        nearest = int(np.argmin(apart))
+        return nearest, float(apart[nearest])
 
     def _solving(self, views: np.ndarray, covs: np.ndarray) -> Generator[None, None, None]:
         """The older and newer halves of ``views`` (with ``covs``) solved apart, step by step,
