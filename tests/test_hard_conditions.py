@@ -1000,8 +1000,10 @@ def test_the_halo_is_the_marker_plus_white_but_a_blurred_fringe_over_grey_is_not
 
 def test_the_numpy_colour_tests_are_the_kernels_pixel_for_pixel():
     """``colour.inside_mask`` and ``lit_marker_mask`` (the fits' whole-crop tests, numpy) give
-    the kernels' ``is_marker`` and ``is_lit_marker`` on every pixel: random colours, the
-    marker's family (ink plus white, clipped or not, in float64 and the fits' float32)."""
+    the kernels' ``is_marker`` and ``is_lit_marker`` on every pixel in float64 (random
+    colours, the marker's family: ink plus white, clipped or not), for the default model and
+    a learned one's tilted ellipse; in the fits' float32, but for a colour on the ellipse's
+    rim to rounding (1 of the 16.7 million for the default model)."""
     from services.vertex_extractor.colour import (
         ColourModel,
         inside_mask,
@@ -1009,8 +1011,6 @@ def test_the_numpy_colour_tests_are_the_kernels_pixel_for_pixel():
         is_marker,
         lit_marker_mask,
     )
-    cm = ColourModel()
-    lut, m = cm.lut, cm.vector
     rng = np.random.default_rng(3)
     ink = np.array([200.0, 0.0, 220.0])
     family = ink * rng.uniform(0.2, 1.0, (3000, 1)) + rng.uniform(0, 255, (3000, 1)) \
@@ -1018,16 +1018,21 @@ def test_the_numpy_colour_tests_are_the_kernels_pixel_for_pixel():
     img = np.concatenate([rng.integers(0, 256, (3000, 3)), np.clip(family, 0, 255)]
                          ).astype(np.uint8).reshape(60, 100, 3)
     chroma = 0.85 * 150.0
-    for unclipped in (False, True):
-        kernel = np.array([[is_lit_marker(img, y, x, lut, m, chroma, unclipped)
-                            for x in range(100)] for y in range(60)])
-        assert 300 < kernel.sum() < 5700  # (both kinds of pixel)
-        for dtype in (np.float64, np.float32):
-            ours = lit_marker_mask(lut.astype(dtype)[img], m, chroma, unclipped)
-            assert (ours == kernel).all(), (unclipped, dtype, int((ours != kernel).sum()))
-    inside = np.array([[is_marker(img, y, x, lut, m) for x in range(100)] for y in range(60)])
-    assert 100 < inside.sum() and (inside_mask(lut[img], m) == inside).all()
-    assert (cm.mask(img) == inside).all()
+    tilted = ColourModel(centre=(0.6, 0.03), covariance=((0.0064, 0.0008), (0.0008, 0.0004)))
+    for cm in (ColourModel(), tilted):
+        lut, m = cm.lut, cm.vector
+        for unclipped in (False, True):
+            kernel = np.array([[is_lit_marker(img, y, x, lut, m, chroma, unclipped)
+                                for x in range(100)] for y in range(60)])
+            assert 300 < kernel.sum() < 5700  # (both kinds of pixel)
+            ours = lit_marker_mask(lut[img], m, chroma, unclipped)
+            assert (ours == kernel).all(), (cm.centre, unclipped, int((ours != kernel).sum()))
+            single = lit_marker_mask(lut.astype(np.float32)[img], m, chroma, unclipped)
+            assert (single != kernel).sum() <= 3
+        inside = np.array([[is_marker(img, y, x, lut, m) for x in range(100)]
+                           for y in range(60)])
+        assert 100 < inside.sum() and (inside_mask(lut[img], m) == inside).all()
+        assert (cm.mask(img) == inside).all()
 
 
 def test_a_vertex_whose_edges_do_not_step_there_is_refused_unless_it_is_hidden():

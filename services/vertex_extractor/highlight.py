@@ -189,10 +189,11 @@ def _disc(radius: int) -> np.ndarray:
 def halo_mask(crop: np.ndarray, marker: np.ndarray, lut: np.ndarray, vector: np.ndarray
               ) -> np.ndarray:
     """The pixels of a BGR crop that are the marker's colour, or it plus white light (bool
-    mask): ``colour.lit_marker_mask``, the least chroma that of the median of the ``marker``
-    pixels (bool mask: the seed's piece of the blob) for the seed's. A highlight's washed-out
-    halo fails the colour test but keeps the marker's chroma score (the model's). In float32
-    (a crop of up to ``MAX_WINDOW_PX`` a side)."""
+    mask): ``colour.lit_marker_mask``, its least chroma ``HALO_MIN_CHROMA`` times the median
+    chroma of the ``marker`` pixels (bool mask: the seed's piece of the blob; a share of
+    that where a channel clips). A highlight's washed-out halo fails the colour test but
+    keeps the marker's chroma score (the model's). In float32 (a crop of up to
+    ``MAX_WINDOW_PX`` a side; a colour on the ellipse's rim may round the other way)."""
     lin = lut.astype(np.float32)[crop]
     seed = lin[marker]
     seed_chroma = float(np.median(seed.sum(axis=1) - 3.0 * seed.min(axis=1)))

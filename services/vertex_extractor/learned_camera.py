@@ -336,9 +336,9 @@ class CameraLearner:
         self._covs = np.empty((MAX_VIEWS, 4, 2, 2))
         self._kept = 0  # views kept, at most MAX_VIEWS
         self._next = 0  # the ring's slot for the next view
-        #: the ring's slot of the view kept that the last view offered was, or was near: a
-        #: view near it is no new view without a look through the views kept (a tracked
-        #: marker standing still, or one found again where it was)
+        #: the ring's slot of the view kept last, or of the one kept that a later confident
+        #: view was found near: a view near it is no new view without a look through the
+        #: views kept (a tracked marker standing still, or one found again where it was)
         self._seen: int | None = None
         self._new = 0
         self._every = SOLVE_EVERY
