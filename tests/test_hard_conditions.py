@@ -225,9 +225,9 @@ def test_a_notch_in_the_outline_is_left_out_but_an_outlier_outward_is_not_a_notc
     pts = np.c_[x, notched + 20.0]
     keep = lines.on_hull(pts, True, lines.HULL_TOLERANCE_PX)
     frame = np.full((60, 40, 3), 90, np.uint8)
-    assert np.array_equal(scan.notch_kept(frame, pts, keep, -1), keep)
+    assert np.array_equal(scan.notch_kept(read_only(frame), pts, keep, -1), keep)
     frame[27:34, 6:13] = 255  # just above the notch points (rows 31-34)
-    assert scan.notch_kept(frame, pts, keep, -1).all()
+    assert scan.notch_kept(read_only(frame), pts, keep, -1).all()
 
 
 def test_magenta_things_in_view_are_never_taken_for_the_marker():
@@ -359,7 +359,7 @@ def test_the_row_scan_is_not_cut_off_at_the_column_scans_box():
         region, sy - y0, sx - x0, int(prm[measure.MIN_LEN]), int(prm[measure.DX]),
         int(prm[measure.WINDOW]), lut, model, int(prm[measure.EDGE]),
         int(prm[measure.OUTER]), prm[measure.SHADED_SPREAD], int(prm[measure.SHADED_DEPTH]),
-        prm[measure.SHADED_GRADIENT] > 0)
+        prm[measure.SHADED_GRADIENT] > 0, int(prm[measure.MAX_COLUMNS]))  # (as compiled)
     rows = measure._row_scan(img, sx, sy, lut, model, prm)
     assert status == scan.OK and in_region[0] == scan.BORDER and rows[0] == scan.OK
     _assert_within(ex.extract(img), truth, 1.0)
@@ -1048,7 +1048,7 @@ def test_a_vertex_whose_edges_do_not_step_there_is_refused_unless_it_is_hidden()
     v = np.array([[30.0, 60.0], [80.0, 20.0], [130.0, 60.0], [80.0, 100.0]])
     cv2.fillConvexPoly(img, np.round(v * 16).astype(np.int32), (200, 40, 200), cv2.LINE_AA, 4)
     img[15:38, 70:91] = (60, 120, 200)  # skin over the top vertex
-    steps = vertex_steps(img, v, cm.lut, cm.vector)
+    steps = vertex_steps(read_only(img), v, cm.lut, cm.vector)
     assert np.isnan(steps[1]) and np.isnan(steps[4])       # next to the hidden top vertex
     seen = steps[[0, 2, 3, 5, 6, 7]]  # alike (an sRGB-drawn edge's steps lie off it alike)
     assert np.all(np.abs(seen - np.median(seen)) < 0.1) and odd_vertex(steps, 1.0)[0] == -1

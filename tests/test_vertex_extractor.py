@@ -12,7 +12,12 @@ from services.runtime.config import parse_deployment
 from services.runtime.launcher import run_deployment
 from services.sim.scenes import random_views
 from services.vertex_extractor.colour import ColourModel, grid_mask
-from services.vertex_extractor.extractor import Detection, ExtractorParams, RhombusExtractor
+from services.vertex_extractor.extractor import (
+    Detection,
+    ExtractorParams,
+    RhombusExtractor,
+    read_only,
+)
 from services.vertex_extractor.lines import best_split, robust_split
 from tests.conftest import wait_alive_async, wait_matched
 from tests.helpers.fake_frames import publish_frame, render_marker
@@ -102,8 +107,9 @@ def test_a_near_marker_is_measured_on_at_most_max_columns_columns():
     fast[measure.MAX_COLUMNS] = p.max_columns
     seed = ex._seed
     assert seed is not None
-    capped = measure.measure(r.image, *seed, p.colour.lut, p.colour.vector, fast)
-    full = measure.measure(r.image, *seed, p.colour.lut, p.colour.vector, ex._prm)
+    image = read_only(r.image)  # (as the extractor passes frames: the kernels' compiled type)
+    capped = measure.measure(image, *seed, p.colour.lut, p.colour.vector, fast)
+    full = measure.measure(image, *seed, p.colour.lut, p.colour.vector, ex._prm)
     assert capped[0] == full[0] == measure.FOUND
     assert capped[1][measure.CAPPED] == 1 and capped[1][measure.CHECKED] == 1
     assert capped[1][measure.COLUMNS] <= 64 < 150 < full[1][measure.COLUMNS]

@@ -155,6 +155,7 @@ def test_learn_refuses_an_image_without_the_marker(tmp_path):
 
 
 def test_paper_mode_walks_the_columns_as_table_1_says():
+    from services.vertex_extractor.extractor import read_only
     from services.vertex_extractor.paper import OK, table1, table2
     img = np.full((200, 300, 3), 90, np.uint8)
     rhombus = np.array([[60, 100], [150, 40], [240, 100], [150, 160]], np.int32)
@@ -162,7 +163,7 @@ def test_paper_mode_walks_the_columns_as_table_1_says():
     marker = np.all(img == (255, 0, 255), axis=-1)
     colour = ColourModel()
     sx, sy, dx, min_len = 147, 95, 3, 12
-    status, U, D = table1(img, sx, sy, min_len, dx, colour.lut, colour.vector)
+    status, U, D = table1(read_only(img), sx, sy, min_len, dx, colour.lut, colour.vector)
     assert status == OK
     xs = U[:, 0]
     assert np.all(np.diff(xs) == dx) and sx in xs  # Δx apart through P_0

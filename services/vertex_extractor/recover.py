@@ -556,4 +556,5 @@ def warm_up() -> None:
     chain = np.array([0, 0, 1, 1])
     refine(q, chain, model, np.eye(3), np.array([0.0, 0.0, 0.4]), 750.0, 2)
     image = np.zeros((8, 8, 3), np.uint8)  # (all inside the mask: no pixel is tested)
+    image.flags.writeable = False  # (as the extractor passes frames)
     _outside_marker(image, np.ones((8, 8), np.bool_), 0, 0, np.zeros(256), np.zeros(8), 0.0)
