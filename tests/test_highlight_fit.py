@@ -209,6 +209,25 @@ def test_a_highlight_the_scans_refuse_is_fitted_whole_within_its_uncertainty(
     _assert_within(det, truth, limit_px)
 
 
+def test_the_fit_reads_its_crop_through_the_frames_compiled_colour_test() -> None:
+    """The whole-marker fit's crop is handed to the colour test (``colour.grid_mask``) as
+    the frames are, read-only: no other compiled variant of it (a writeable crop compiled
+    one at the first highlight a deployment met, which ``shepherd compile`` had not)."""
+    image, truth, _ = _in_frame("highlight_24")  # (a whole frame: the crop is a copy)
+    writeable: list[bool] = []
+    grid_mask = highlight.grid_mask
+
+    def recording(crop: np.ndarray, *args: object) -> object:
+        writeable.append(crop.flags.writeable)
+        return grid_mask(crop, *args)
+
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(highlight, "grid_mask", recording)
+        det = RhombusExtractor().extract(image)  # (fitted whole: every scan refuses it)
+    _assert_within(det, truth, 0.6)
+    assert not image.flags.writeable and writeable and not any(writeable)
+
+
 def test_without_intrinsics_a_hidden_edge_is_given_by_the_rhombus_under_assumed_cameras():
     """Kept webcam frames, put back where they were cropped, whose highlight washes out an
     edge (seed 2024: views 24 and 78 the lower left one, in 78 most of the lower right one

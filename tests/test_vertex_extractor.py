@@ -240,7 +240,7 @@ def test_the_cold_searchs_green_pretest_drops_no_marker_colour(model):
     """The byte table that passes over too-green pixels is a necessary condition of the
     interior test: the grid finds the same pixels with it as without, over all 2^24 colours."""
     v = np.arange(256, dtype=np.uint8)
-    every = np.stack(np.meshgrid(v, v, v, indexing="ij"), -1).reshape(4096, 4096, 3)
+    every = read_only(np.stack(np.meshgrid(v, v, v, indexing="ij"), -1).reshape(4096, 4096, 3))
     with_pretest = grid_mask(every, 1, 0, model.lut, model.vector, model.green_bound)
     without = grid_mask(every, 1, 0, model.lut, model.vector, np.full(256, 255, np.uint8))
     assert with_pretest[1] == without[1] > 0

@@ -245,6 +245,7 @@ def _window(image: np.ndarray, seed: tuple[int, int], level: int, whole: bool,
         if x1 <= x0 or y1 <= y0:
             return NO_BLOB
         crop = np.ascontiguousarray(image[y0:y1, x0:x1])
+        crop.flags.writeable = False  # (the kernels' compiled type: the frames')
         white = cv2.inRange(crop, (level,) * 3, (255, 255, 255))
         if not cv2.countNonZero(white):
             return NO_HIGHLIGHT  # (the common case, first and cheaply: no white near)
