@@ -35,7 +35,7 @@ test: install
 	$(BIN)/shepherd compile
 	$(BIN)/pytest -q -n 2 --dist loadgroup
 
-# everything but the tests marked slow (end-to-end runs, the wheel install): under a minute
+# everything but the tests marked slow (end-to-end runs, the wheel install): a few minutes
 test-fast: install
 	bash scripts/install-test-deps
 	$(MAKE) lint
