@@ -3,7 +3,10 @@ the default deployment and the paper's camera shipped as package data."""
 
 from __future__ import annotations
 
+import hashlib
+import importlib
 import os
+import shutil
 import subprocess
 import sys
 import sysconfig
@@ -11,9 +14,35 @@ from pathlib import Path
 
 import pytest
 
+from services.core import jit
 from tests.conftest import endpoint
 
 ROOT = Path(__file__).resolve().parent.parent
+
+
+def _numba_folder(source_dir: Path) -> str:
+    """numba's name for a source folder's kernels inside a cache directory: the folder's name
+    and the SHA-1 of its absolute path (``numba.core.caching``, ``_CacheLocator``)."""
+    return f"{source_dir.name}_{hashlib.sha1(str(source_dir).encode()).hexdigest()}"
+
+
+def _seed_kernel_cache(installed: Path) -> int:
+    """This tree's compiled kernels (``make install`` compiled them: the same sources) copied
+    to where the installed package ``installed`` looks for them; how many folders. numba
+    checks a cached kernel's source by its content, so the installed copy's kernels load
+    from them; any it lacks are compiled there (the test asks for a compile that works; a
+    fresh compile of the same sources is ``make install``'s, 4-8 minutes of this test
+    before)."""
+    mine = jit.configure_cache()
+    target = installed / "__pycache__" / mine.name  # (jit.cache_dir: the same tag)
+    copied = 0
+    for sub in {Path(name).parent.name for name in jit.KERNEL_SOURCES}:
+        package = importlib.import_module(f"services.{sub}")  # (numba's path: not resolved)
+        cached = mine / _numba_folder(Path(os.path.abspath(str(package.__file__))).parent)
+        if cached.is_dir():
+            shutil.copytree(cached, target / _numba_folder(installed / sub))
+            copied += 1
+    return copied
 
 
 @pytest.mark.slow
@@ -43,11 +72,10 @@ def test_a_wheel_installed_elsewhere_runs_the_default_mission_from_an_empty_fold
                             "import services.data as d; print(d.DEFAULT_DEPLOYMENT)"],
                            capture_output=True, text=True, cwd=empty, env=env, check=True)
     assert where.stdout.strip().startswith(str(purelib)), where.stdout  # not the source tree
-    # (a fresh cache: 40 s to 6 min for the kernels with the other test worker busy, by the
-    # machine and the day; the test asks for a compile that works, not for its time)
+    seeded = _seed_kernel_cache(purelib / "services")  # (0: compiled afresh, minutes)
     compiled = subprocess.run([shepherd, "compile"], capture_output=True, text=True,
                               cwd=empty, env=env, timeout=1500)
-    assert compiled.returncode == 0, compiled.stderr[-3000:]
+    assert compiled.returncode == 0, f"{seeded} cache folders seeded\n{compiled.stderr[-3000:]}"
     # 10 s: the services' start (kernels loaded from the cache) takes a few seconds of it on
     # a busy machine; the test asks for poses, not for a start-up time
     run = subprocess.run([shepherd, "--log-level", "WARNING", "run", "--duration", "10",
