@@ -27,7 +27,8 @@ def run_bench(only: list[str], quick: bool = False) -> int:
     print(f"# shepherd bench — {platform.processor() or platform.machine()}, "
           f"Python {platform.python_version()}, {'quick' if quick else 'full'} run; "
           f"this machine: {machine_ms():.0f} ms for 10^6 additions in a Python loop (about "
-          "35-40 on a typical current machine; every time below scales with it)")
+          "35-40 on a typical current machine; compiled code's speed differs between machines "
+          "apart from it: each table's ratio to its reference is the figure to compare)")
     from services.tools.kernels import compile_kernels
     progress("compiling the kernels (cached after the first run)")
     compile_kernels(sys.stderr)
