@@ -361,12 +361,15 @@ def run(quick: bool) -> None:
                                   webcam=True))
         # every method timed on a frame before the next frame: a machine whose speed drifts
         # during the run (a shared virtual machine's, by 1.5-2x) moves them all alike
-        timed: dict[str, tuple[Callable[[np.ndarray], object], int, list[np.ndarray]]] = {}
+        # (name: the call, its calls a frame, its times, the extractor a tracked call's frame
+        # is first searched cold with)
+        timed: dict[str, tuple[Callable[[np.ndarray], object], int, list[np.ndarray],
+                               RhombusExtractor | None]] = {}
         for name, extractor in (("ours", ex), ("paper", ex_paper)):
-            timed[f"{name}, tracked"] = (extractor.extract, 5, [])  # (after a cold search)
-            timed[f"{name}, cold"] = (cold(extractor), 3, [])
+            timed[f"{name}, tracked"] = (extractor.extract, 5, [], extractor)
+            timed[f"{name}, cold"] = (cold(extractor), 3, [], None)
         for name, m in list(methods.items())[2:]:  # (the first: the ratios' reference)
-            timed[name] = (m, 3, [])
+            timed[name] = (m, 3, [], None)
         # (the tag detectors on the same frame with a tag warped onto the rhombus: ArUco on
         # BGR, AprilTag on its grey)
         tags: dict[str, tuple[Callable[[np.ndarray], object], bool, list[np.ndarray]]] = {}
@@ -383,18 +386,18 @@ def run(quick: bool) -> None:
                               "not installed: pip install '.[bench]'", "", ""))
         for v in views:
             img = v.rendered.image
-            for name, (fn, calls, out) in timed.items():
-                if name.endswith("tracked"):  # (its first call: a cold search)
-                    (ex if name.startswith("ours") else ex_paper).reset()
-                    fn(img)
+            for fn, calls, out, tracks in timed.values():
+                if tracks is not None:
+                    tracks.reset()
+                    tracks.extract(img)
                 out.append(times_us(fn, calls, img))
             if tags:
                 tagged = _aruco_frame(v)
                 grey = cv2.cvtColor(tagged, cv2.COLOR_BGR2GRAY)
                 for fn, on_grey, out in tags.values():
                     out.append(times_us(fn, 3, grey if on_grey else tagged))
-        entries = [(name, np.concatenate(out)) for name, (_, _, out) in
-                   (*timed.items(), *tags.items())]
+        entries = [(name, np.concatenate(t[2])) for name, t in timed.items()]
+        entries += [(name, np.concatenate(t[2])) for name, t in tags.items()]
         ref = float(np.median(entries[4][1]))
         for name, t in entries:
             speed.append((f"{width}x{height}", name, f"{np.median(t) / 1e3:.3f}",
