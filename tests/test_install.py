@@ -3,7 +3,6 @@ the default deployment and the paper's camera shipped as package data."""
 
 from __future__ import annotations
 
-import hashlib
 import importlib
 import os
 import shutil
@@ -13,17 +12,12 @@ import sysconfig
 from pathlib import Path
 
 import pytest
+from numba.core.caching import UserProvidedCacheLocator
 
 from services.core import jit
 from tests.conftest import endpoint
 
 ROOT = Path(__file__).resolve().parent.parent
-
-
-def _numba_folder(source_dir: Path) -> str:
-    """numba's name for a source folder's kernels inside a cache directory: the folder's name
-    and the SHA-1 of its absolute path (``numba.core.caching``, ``_CacheLocator``)."""
-    return f"{source_dir.name}_{hashlib.sha1(str(source_dir).encode()).hexdigest()}"
 
 
 def _seed_kernel_cache(installed: Path) -> int:
@@ -36,11 +30,12 @@ def _seed_kernel_cache(installed: Path) -> int:
     mine = jit.configure_cache()
     target = installed / "__pycache__" / mine.name  # (jit.cache_dir: the same tag)
     copied = 0
+    folder = UserProvidedCacheLocator.get_suitable_cache_subpath  # (numba's: by a file's folder)
     for sub in {Path(name).parent.name for name in jit.KERNEL_SOURCES}:
         package = importlib.import_module(f"services.{sub}")  # (numba's path: not resolved)
-        cached = mine / _numba_folder(Path(os.path.abspath(str(package.__file__))).parent)
+        cached = mine / folder(str(package.__file__))
         if cached.is_dir():
-            shutil.copytree(cached, target / _numba_folder(installed / sub))
+            shutil.copytree(cached, target / folder(str(installed / sub / "__init__.py")))
             copied += 1
     return copied
 

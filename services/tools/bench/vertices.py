@@ -409,8 +409,8 @@ def run(quick: bool) -> None:
     section("Vertex extraction speed, webcam frames", ("size", "method", "median ms", "p99 ms",
                                                        "/ contour + fitLine"), speed,
             "Every method times a frame in turn before the next frame (a machine's speed "
-            "drifting during the run moves them alike; the last column is the machine's "
-            "figure least). Goals: tracked <= 0.1 ms at 640x480 and <= 0.2 ms at 1920x1080, "
+            "drifting during the run moves them alike; the last column depends least on the "
+            "machine). Goals: tracked <= 0.1 ms at 640x480 and <= 0.2 ms at 1920x1080, "
             "cold <= 0.5 ms at 1920x1080, faster than every reference.")
 
 
